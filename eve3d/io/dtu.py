@@ -1,0 +1,53 @@
+"""The DTU layout of IDR/NeuS: ``cameras.npz`` (``world_mat_i``, ``scale_mat_i``),
+``image/`` or ``images/``, ``mask/``.
+
+Cameras are returned in the normalised frame (P = world_mat @ scale_mat), where the object
+lies in the unit sphere; ``Scene.to_world`` is ``scale_mat``, which maps back to DTU mm.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+
+from eve3d.fileio import check_image, list_images
+from eve3d.scene import Camera, Eve3dError, Scene
+
+
+def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """3×4 projection (any scale) → K (K[2,2] = 1, positive focal lengths), R, t."""
+    P = np.asarray(P, dtype=np.float64)[:3, :4]
+    if np.linalg.det(P[:, :3]) < 0:  # the overall scale of P may be negative
+        P = -P
+    K, R = scipy.linalg.rq(P[:, :3])
+    signs = np.diag(np.sign(np.diag(K)))  # make the focal lengths positive
+    K, R = K @ signs, signs @ R
+    t = np.linalg.solve(K, P[:, 3])
+    return K / K[2, 2], R, t
+
+
+def read_dtu(root: Path, check_images: bool = True) -> Scene:
+    npz_path = root / "cameras.npz"
+    try:
+        cams = dict(np.load(npz_path, allow_pickle=False))
+    except Exception as e:
+        raise Eve3dError(f"{npz_path}: cannot read camera file ({e})") from None
+    image_dir = next((root / d for d in ("image", "images") if (root / d).is_dir()), root / "image")
+    images = list_images(image_dir)
+    mask_dir = root / "mask"
+    masks = list_images(mask_dir) if mask_dir.is_dir() else None
+    if masks is not None and len(masks) != len(images):
+        raise Eve3dError(f"{mask_dir}: {len(masks)} masks for {len(images)} images in {image_dir}")
+    width, height = check_image(images[0])
+    cameras = []
+    for i, path in enumerate(images):
+        if f"world_mat_{i}" not in cams:
+            raise Eve3dError(f"{npz_path}: no world_mat_{i} for image {path.name}")
+        scale = cams.get(f"scale_mat_{i}", np.eye(4))
+        K, R, t = decompose_projection((cams[f"world_mat_{i}"] @ scale)[:3])
+        if check_images:
+            check_image(path, (width, height))
+        cameras.append(Camera(path.name, width, height, K, R, t, path, masks[i] if masks else None))
+    return Scene(root=root, cameras=cameras, kind="object", to_world=cams.get("scale_mat_0", np.eye(4)),
+                 extras={"object_radius": 1.0, "format": "dtu"})

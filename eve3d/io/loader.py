@@ -1,0 +1,51 @@
+"""Recognise a dataset's layout and read it into a ``Scene``."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from eve3d.io.colmap import read_colmap
+from eve3d.io.dtu import read_dtu
+from eve3d.io.tnt import read_tnt, tnt_name
+from eve3d.scene import Eve3dError, Scene
+
+METADATA = "eve3d_scene.json"
+"""Optional file beside a dataset (written by ``eve3d synth``): kind, GT mesh, object radius."""
+
+
+def find_colmap_model(root: Path) -> Path | None:
+    """The COLMAP model folder of a dataset: ``sparse/0``, ``sparse`` or the folder itself."""
+    for cand in (root / "sparse" / "0", root / "sparse", root):
+        if (cand / "cameras.bin").exists() or (cand / "cameras.txt").exists():
+            return cand
+    return None
+
+
+def has_poses(root: Path) -> bool:
+    """Whether the dataset brings its own poses (so SfM is skipped)."""
+    return (root / "cameras.npz").exists() or find_colmap_model(root) is not None
+
+
+def load_scene(root: str | Path, check_images: bool = True) -> Scene:
+    """Read the posed dataset in ``root`` (DTU, Tanks and Temples, or COLMAP)."""
+    root = Path(root)
+    if not root.is_dir():
+        raise Eve3dError(f"{root}: dataset folder not found")
+    if (root / "cameras.npz").exists():
+        scene = read_dtu(root, check_images)
+    elif (model := find_colmap_model(root)) is not None:
+        if tnt_name(root):
+            scene = read_tnt(root, model, check_images)
+        else:
+            scene = read_colmap(model, root / "images", root=root, check_images=check_images)
+    else:
+        raise Eve3dError(f"{root}: no poses (no cameras.npz, no COLMAP model in sparse/0): run `eve3d sfm` first")
+    meta_path = root / METADATA
+    if meta_path.exists():
+        meta = json.loads(meta_path.read_text())
+        scene.kind = meta.get("kind", scene.kind)
+        if "gt_mesh" in meta:
+            scene.gt_mesh = root / meta["gt_mesh"]
+        if "object_radius" in meta:
+            scene.extras["object_radius"] = meta["object_radius"]
+    return scene

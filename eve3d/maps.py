@@ -1,0 +1,48 @@
+"""Per-view maps (depth, confidence, normals) as float32 ``.npz`` with PNG previews."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from eve3d.fileio import atomic_path, write_image
+from eve3d.scene import Eve3dError
+
+MAP_KEYS = ("depth", "confidence", "normal")
+
+
+def save_maps(path: Path, preview: bool = True, **maps: np.ndarray) -> None:
+    """Write ``path`` (.npz, float32 arrays) atomically, and ``{stem}.{key}.png`` previews."""
+    arrays = {k: np.asarray(v, dtype=np.float32) for k, v in maps.items()}
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+    if preview:
+        for key, arr in arrays.items():
+            write_image(path.with_name(f"{path.stem}.{key}.png"), preview_image(key, arr, arrays.get("depth")))
+
+
+def load_maps(path: Path) -> dict[str, np.ndarray]:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+    except Exception as e:
+        raise Eve3dError(f"{path}: cannot read map file ({e})") from None
+
+
+def preview_image(key: str, arr: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
+    """RGB uint8 preview: depth coloured (turbo, near = red), confidence grey, normals RGB."""
+    import cv2
+
+    if key == "normal":
+        valid = np.linalg.norm(arr, axis=-1) > 0
+        return np.where(valid[..., None], (arr * [0.5, -0.5, -0.5] + 0.5) * 255, 0).clip(0, 255).astype(np.uint8)
+    if key == "depth":
+        valid = arr > 0
+        if not valid.any():
+            return np.zeros(arr.shape + (3,), np.uint8)
+        lo, hi = np.percentile(arr[valid], [1, 99])
+        x = (1 - np.clip((arr - lo) / max(hi - lo, 1e-12), 0, 1)) * 255
+        rgb = cv2.applyColorMap(x.astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
+        return np.where(valid[..., None], rgb, 0).astype(np.uint8)
+    return (np.clip(arr, 0, 1) * 255).astype(np.uint8)

@@ -1,0 +1,91 @@
+"""Exact depth and normals of a triangle mesh seen by a ``Camera`` (open3d ray casting).
+
+Used to render synthetic scenes and as the ``oracle`` depth source.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from eve3d.scene import Camera, Eve3dError
+
+
+@dataclass
+class Hits:
+    """Per-ray results; arrays are shaped like the rays' leading dimensions."""
+
+    depth: np.ndarray
+    """Camera z of the hit (0 where the ray misses)."""
+    normal: np.ndarray
+    """World-space unit face normal, flipped to face the camera (0 on a miss)."""
+    geometry: np.ndarray
+    """Index of the mesh part hit (-1 on a miss)."""
+    points: np.ndarray
+    """World-space hit points."""
+    triangle: np.ndarray
+    """Index of the triangle hit within its part (-1 on a miss)."""
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.geometry >= 0
+
+
+class MeshRaycaster:
+    """A set of triangle meshes (parts) to cast camera rays against."""
+
+    def __init__(self, parts: list) -> None:
+        import open3d as o3d
+
+        self._scene = o3d.t.geometry.RaycastingScene()
+        ids = []
+        for mesh in parts:
+            tmesh = o3d.t.geometry.TriangleMesh.from_legacy(mesh) if isinstance(mesh, o3d.geometry.TriangleMesh) else mesh
+            ids.append(self._scene.add_triangles(tmesh))
+        self._part_of_id = np.full(max(ids) + 1, -1, dtype=np.int64)  # open3d geometry id → part index
+        self._part_of_id[ids] = np.arange(len(ids))
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> MeshRaycaster:
+        import open3d as o3d
+
+        mesh = o3d.io.read_triangle_mesh(str(path))
+        if len(mesh.triangles) == 0:
+            raise Eve3dError(f"{path}: not a triangle mesh, or an empty one")
+        return cls([mesh])
+
+    def cast(self, cam: Camera, pixel_offsets: np.ndarray | None = None) -> Hits:
+        """One ray per pixel through its centre (arrays (H,W,...)), or one per pixel and
+        offset (dx,dy) within the pixel in ``pixel_offsets`` (arrays (S,H,W,...))."""
+        offsets = np.array([[0.5, 0.5]]) if pixel_offsets is None else np.asarray(pixel_offsets)
+        u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+        uv = np.stack([u[None] + offsets[:, 0, None, None], v[None] + offsets[:, 1, None, None]], axis=-1)
+        hits = self.cast_uv(cam, uv)
+        if pixel_offsets is None:
+            hits = Hits(hits.depth[0], hits.normal[0], hits.geometry[0], hits.points[0], hits.triangle[0])
+        return hits
+
+    def cast_uv(self, cam: Camera, uv: np.ndarray) -> Hits:
+        """Rays through continuous pixel coordinates ``uv`` (...,2) (pixel centres at +0.5)."""
+        import open3d as o3d
+
+        uv = np.asarray(uv, dtype=np.float64)
+        pix = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], axis=-1)
+        # Directions with camera z = 1, so the ray parameter of a hit is its camera depth.
+        dirs = (pix @ np.linalg.inv(cam.K).T @ cam.R).reshape(-1, 3)
+        origins = np.broadcast_to(cam.center, dirs.shape)
+        rays = o3d.core.Tensor(np.concatenate([origins, dirs], axis=-1).astype(np.float32))
+        out = self._scene.cast_rays(rays)
+        t = out["t_hit"].numpy().astype(np.float64)
+        hit = np.isfinite(t)
+        geom = np.where(hit, self._part_of_id[np.where(hit, out["geometry_ids"].numpy().astype(np.int64), 0)], -1)
+        normal = out["primitive_normals"].numpy().astype(np.float64)
+        normal = np.where((np.sum(normal * dirs, axis=1) > 0)[:, None], -normal, normal)
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+        depth = np.where(hit, t, 0.0)
+        points = cam.center + dirs * depth[:, None]
+        triangle = np.where(hit, out["primitive_ids"].numpy().astype(np.int64), -1)
+        shape = uv.shape[:-1]
+        return Hits(depth.reshape(shape), np.where(hit[:, None], normal, 0).reshape(shape + (3,)),
+                    geom.reshape(shape), points.reshape(shape + (3,)), triangle.reshape(shape))

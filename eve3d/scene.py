@@ -1,0 +1,176 @@
+"""The one scene/camera type every stage shares.
+
+Conventions (DESIGN §5): OpenCV/COLMAP cameras (x right, y down, z forward), world-to-camera
+``x_cam = R @ x_world + t``, intrinsics ``K`` in pixels with pixel centres at +0.5.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+SceneKind = Literal["object", "scene"]
+
+
+class Eve3dError(Exception):
+    """A problem with the user's input or configuration; the CLI prints it and exits 2."""
+
+
+@dataclass
+class Camera:
+    """One posed pinhole view."""
+
+    name: str
+    """Image file name relative to the scene's image folder; its stem is the view id."""
+    width: int
+    height: int
+    K: np.ndarray
+    """3×3 intrinsics in pixels (skew kept when a dataset has it, e.g. DTU)."""
+    R: np.ndarray
+    """3×3 world-to-camera rotation."""
+    t: np.ndarray
+    """3-vector world-to-camera translation."""
+    image_path: Path | None = None
+    mask_path: Path | None = None
+    """Foreground mask (white = object), when the dataset has one (DTU)."""
+
+    def __post_init__(self) -> None:
+        self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
+        self.R = np.asarray(self.R, dtype=np.float64).reshape(3, 3)
+        self.t = np.asarray(self.t, dtype=np.float64).reshape(3)
+
+    @property
+    def view_id(self) -> str:
+        return Path(self.name).stem
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates."""
+        return -self.R.T @ self.t
+
+    @property
+    def world_to_camera(self) -> np.ndarray:
+        """4×4 world-to-camera matrix."""
+        m = np.eye(4)
+        m[:3, :3] = self.R
+        m[:3, 3] = self.t
+        return m
+
+    @property
+    def projection(self) -> np.ndarray:
+        """3×4 projection matrix K [R | t]."""
+        return self.K @ self.world_to_camera[:3]
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (N,3) → pixel coordinates (N,2) and camera-space depth z (N,)."""
+        cam = points @ self.R.T + self.t
+        z = cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uvw = cam @ self.K.T
+            uv = uvw[:, :2] / uvw[:, 2:3]
+        return uv, z
+
+    def pixel_rays(self) -> np.ndarray:
+        """World-space ray directions (H,W,3) through pixel centres, scaled so that a
+        point at ray parameter s has camera depth z = s."""
+        u, v = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        pix = np.stack([u, v, np.ones_like(u)], axis=-1)
+        cam_dirs = pix @ np.linalg.inv(self.K).T
+        return cam_dirs @ self.R
+
+    def backproject(self, depth: np.ndarray) -> np.ndarray:
+        """Depth map (H,W) of camera z → world points (H,W,3)."""
+        return self.center + self.pixel_rays() * depth[..., None]
+
+    def scaled(self, factor: float) -> Camera:
+        """The same view at image size × factor (pixel-centre convention preserved)."""
+        K = self.K.copy()
+        K[:2] *= factor
+        return replace(self, K=K, width=round(self.width * factor), height=round(self.height * factor))
+
+
+@dataclass
+class Scene:
+    """A posed image set, whatever format it came from (COLMAP, DTU, T&T, synthetic)."""
+
+    root: Path
+    """Dataset folder the scene was read from."""
+    cameras: list[Camera]
+    kind: SceneKind = "scene"
+    """'object' (DTU-like, object in a unit sphere) or 'scene' (rooms, outdoor scenes)."""
+    points: np.ndarray | None = None
+    """Sparse 3D points (N,3), world coordinates (SfM points or a synthetic stand-in)."""
+    point_colors: np.ndarray | None = None
+    """uint8 RGB (N,3) of the sparse points."""
+    point_views: list[np.ndarray] | None = None
+    """For each sparse point, the indices into ``cameras`` that observe it."""
+    to_world: np.ndarray = field(default_factory=lambda: np.eye(4))
+    """4×4 map from these (normalised) coordinates to the dataset's original units, e.g.
+    DTU's ``scale_mat``; identity when the scene was not normalised."""
+    gt_mesh: Path | None = None
+    """Ground-truth surface, when known (synthetic scenes, T&T ``Scene.ply``)."""
+    extras: dict = field(default_factory=dict)
+    """Format-specific files, e.g. T&T alignment and crop files."""
+
+    @property
+    def center(self) -> np.ndarray:
+        """Mean camera centre."""
+        return np.mean([c.center for c in self.cameras], axis=0)
+
+    @property
+    def radius(self) -> float:
+        """1.1 × the largest distance of a camera centre from their mean (DESIGN §5)."""
+        centers = np.array([c.center for c in self.cameras])
+        return 1.1 * float(np.max(np.linalg.norm(centers - self.center, axis=1)))
+
+    @property
+    def object_radius(self) -> float:
+        """Size of the 'normalised units' object-scene settings are given in: 1 when the
+        scene is already normalised (DTU, synthetic objects), else the radius that holds
+        95% of the sparse points around their median."""
+        if "object_radius" in self.extras:
+            return float(self.extras["object_radius"])
+        if self.points is not None and len(self.points) >= 10:
+            d = np.linalg.norm(self.points - np.median(self.points, axis=0), axis=1)
+            return float(np.quantile(d, 0.95))
+        return self.radius / 3.0
+
+    def camera(self, view_id: str) -> Camera:
+        for cam in self.cameras:
+            if cam.view_id == view_id:
+                return cam
+        raise KeyError(view_id)
+
+
+def similarity_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity (Umeyama): scale s, rotation R, translation t minimising
+    Σ‖s R src_i + t − dst_i‖². Inputs are (N,3) with N ≥ 3 non-collinear points."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    U, S, Vt = np.linalg.svd(cov)
+    D = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        D[2, 2] = -1
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(S) @ D) / (xs**2).sum(axis=1).mean())
+    t = mu_d - s * R @ mu_s
+    return s, R, t

@@ -1,0 +1,300 @@
+"""Procedural synthetic scenes with exact ground truth (``eve3d synth KIND OUT``).
+
+Meshes are textured with solid (3D) textures and Lambertian shading under a fixed light, so
+colours do not depend on the view, and rendered by open3d ray casting on the CPU. Each scene
+mixes the cases stereo priors exist for: a textureless region (``flat``) and a repetitive
+pattern (``tiles``), beside value-noise textures that SfM can match.
+
+Output, laid out the way a user brings data:
+``images/*.png``, ``sparse/0/`` (COLMAP model with the exact poses and visible surface points;
+under ``gt/sparse/0/`` instead with ``images_only``), ``masks/`` (object scenes), ``gt/mesh.ply``
+and ``eve3d_scene.json``. The GT mesh holds the triangles that some pixel ray of some view
+hits: the observable surface, so that completeness is not charged for the underside of the
+table, and so that the oracle depth of the GT mesh is the depth the images were rendered with.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from eve3d.fileio import atomic_dir, write_image
+from eve3d.io.colmap import write_colmap
+from eve3d.io.loader import METADATA
+from eve3d.raycast import MeshRaycaster
+from eve3d.scene import Camera, Scene
+from eve3d.surface import sample_surface
+
+KINDS = ("object", "room")
+LIGHT = np.array([0.3, -0.5, 1.0]) / np.linalg.norm([0.3, -0.5, 1.0])
+
+
+@dataclass
+class Material:
+    """Solid texture: 'noise' (value-noise fBm between two colours), 'tiles' (a checker of
+    the given period, lightly modulated by noise) or 'flat' (one colour: textureless)."""
+
+    pattern: str
+    color_a: tuple[float, float, float]
+    color_b: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scale: float = 8.0
+    """Noise frequency (cells per unit) or tile period (units)."""
+
+    def albedo(self, p: np.ndarray, seed: int) -> np.ndarray:
+        a, b = np.asarray(self.color_a), np.asarray(self.color_b)
+        if self.pattern == "flat":
+            return np.broadcast_to(a, p.shape).copy()
+        if self.pattern == "tiles":
+            cell = np.floor(p / self.scale + 0.5).astype(np.int64).sum(axis=-1) % 2
+            w = cell[..., None] * 0.8 + 0.2 * fbm(p * 6.0 / self.scale, seed, octaves=2)[..., None]
+            return a * (1 - w) + b * w
+        w = np.clip((fbm(p * self.scale, seed) - 0.5) * 2.2 + 0.5, 0, 1)[..., None]
+        return a * (1 - w) + b * w
+
+
+def _hash(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, seed: int) -> np.ndarray:
+    """Integer lattice → uniform [0,1) (a splitmix64-style mix)."""
+    with np.errstate(over="ignore"):
+        h = (ix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) ^ (iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F))
+        h ^= iz.astype(np.uint64) * np.uint64(0x165667B19E3779F9) ^ np.uint64(seed * 0x27D4EB2F165667C5 & (2**64 - 1))
+        h ^= h >> np.uint64(31)
+        h *= np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(29)
+    return (h >> np.uint64(11)).astype(np.float64) / float(2**53)
+
+
+def value_noise(p: np.ndarray, seed: int) -> np.ndarray:
+    """Smooth trilinear value noise in [0,1) at points p (...,3)."""
+    i = np.floor(p).astype(np.int64)
+    f = p - i
+    f = f * f * (3 - 2 * f)
+    out = np.zeros(p.shape[:-1])
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                w = (f[..., 0] if dx else 1 - f[..., 0]) * (f[..., 1] if dy else 1 - f[..., 1]) * (f[..., 2] if dz else 1 - f[..., 2])
+                out += w * _hash(i[..., 0] + dx, i[..., 1] + dy, i[..., 2] + dz, seed)
+    return out
+
+
+def fbm(p: np.ndarray, seed: int, octaves: int = 4) -> np.ndarray:
+    """Fractal sum of value noise, normalised to [0,1)."""
+    total, amp, norm = np.zeros(p.shape[:-1]), 1.0, 0.0
+    for k in range(octaves):
+        total += amp * value_noise(p * 2.0**k, seed + 101 * k)
+        norm += amp
+        amp *= 0.5
+    return total / norm
+
+
+@dataclass
+class Part:
+    mesh: object
+    """open3d legacy TriangleMesh."""
+    material: Material
+    foreground: bool = False
+    """Counts as the object in masks (object scenes)."""
+
+
+def _box(size, center):
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh.create_box(*size)
+    m.translate(np.asarray(center) - np.asarray(size) / 2)
+    return m
+
+
+def _quad(corners):
+    """An inward/outward agnostic rectangle from 4 corners (counter-clockwise)."""
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh()
+    m.vertices = o3d.utility.Vector3dVector(np.asarray(corners, dtype=np.float64))
+    m.triangles = o3d.utility.Vector3iVector(np.array([[0, 1, 2], [0, 2, 3]]))
+    return m
+
+
+def object_parts() -> list[Part]:
+    """A DTU-like object (in the unit sphere) standing on a tiled table."""
+    import open3d as o3d
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.32, resolution=48)
+    sphere.translate([-0.35, 0.15, 0.28])  # parts sink into the table: one connected object
+    torus = o3d.geometry.TriangleMesh.create_torus(0.28, 0.09, radial_resolution=64, tubular_resolution=24)
+    torus.rotate(o3d.geometry.get_rotation_matrix_from_xyz([np.pi / 2, 0, 0.4]), center=[0, 0, 0])
+    torus.translate([0.05, -0.35, 0.33])
+    cylinder = o3d.geometry.TriangleMesh.create_cylinder(0.14, 0.75, resolution=48, split=4)
+    cylinder.translate([0.42, 0.38, 0.375])
+    return [
+        Part(_box((3.0, 3.0, 0.1), (0, 0, -0.05)), Material("tiles", (0.85, 0.82, 0.75), (0.25, 0.3, 0.45), scale=0.2)),
+        Part(sphere, Material("noise", (0.9, 0.5, 0.2), (0.2, 0.1, 0.05), scale=7.0), True),
+        Part(torus, Material("noise", (0.2, 0.6, 0.3), (0.9, 0.9, 0.6), scale=9.0), True),
+        Part(cylinder, Material("noise", (0.3, 0.3, 0.8), (0.95, 0.8, 0.8), scale=8.0), True),
+        Part(_box((0.42, 0.36, 0.5), (0.45, -0.05, 0.25)), Material("flat", (0.75, 0.72, 0.7)), True),
+    ]
+
+
+def room_parts() -> list[Part]:
+    """A Meetingroom-like box room with a table and furniture, seen from inside."""
+    import open3d as o3d
+
+    X, Y, Z = 3.0, 2.5, 2.6
+    wall = Material("noise", (0.8, 0.75, 0.65), (0.35, 0.3, 0.25), scale=4.0)
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.2, resolution=32)
+    sphere.translate([0.3, 0.2, 0.95])
+    return [
+        Part(_quad([(-X, -Y, 0), (X, -Y, 0), (X, Y, 0), (-X, Y, 0)]), Material("tiles", (0.8, 0.8, 0.78), (0.3, 0.25, 0.2), scale=0.5)),
+        Part(_quad([(-X, -Y, Z), (-X, Y, Z), (X, Y, Z), (X, -Y, Z)]), Material("noise", (0.9, 0.9, 0.88), (0.6, 0.6, 0.6), scale=2.0)),
+        Part(_quad([(X, -Y, 0), (X, -Y, Z), (X, Y, Z), (X, Y, 0)]), Material("flat", (0.82, 0.84, 0.86))),
+        Part(_quad([(-X, -Y, 0), (-X, Y, 0), (-X, Y, Z), (-X, -Y, Z)]), wall),
+        Part(_quad([(-X, Y, 0), (X, Y, 0), (X, Y, Z), (-X, Y, Z)]), Material("noise", (0.5, 0.6, 0.75), (0.15, 0.2, 0.3), scale=4.0)),
+        Part(_quad([(-X, -Y, 0), (-X, -Y, Z), (X, -Y, Z), (X, -Y, 0)]), wall),
+        Part(_box((1.6, 0.9, 0.08), (0.2, 0.1, 0.75)), Material("noise", (0.55, 0.35, 0.2), (0.3, 0.15, 0.05), scale=6.0)),
+        Part(_box((1.3, 0.7, 0.71), (0.2, 0.1, 0.355)), Material("noise", (0.35, 0.2, 0.1), (0.6, 0.45, 0.3), scale=6.0)),
+        Part(_box((0.6, 1.6, 0.9), (-2.4, -0.6, 0.45)), Material("noise", (0.6, 0.15, 0.15), (0.9, 0.6, 0.5), scale=5.0)),
+        Part(_box((0.9, 0.5, 1.8), (2.3, 1.9, 0.9)), Material("tiles", (0.9, 0.9, 0.9), (0.2, 0.2, 0.25), scale=0.15)),
+        Part(sphere, Material("noise", (0.9, 0.8, 0.2), (0.3, 0.2, 0.1), scale=10.0)),
+    ]
+
+
+def refine(mesh, max_edge: float):
+    """Midpoint-subdivide until no edge is longer than ``max_edge``, so that the observed
+    part of a large face (the table under an object) can be told from the hidden part."""
+    while True:
+        tri = np.asarray(mesh.vertices)[np.asarray(mesh.triangles)]
+        if np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max() <= max_edge:
+            return mesh
+        mesh = mesh.subdivide_midpoint(1)
+
+
+def _look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera (R, t) of an OpenCV camera at ``center`` looking at ``target``."""
+    z = target - center
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ center
+
+
+def object_cameras(n: int, width: int, height: int, rng: np.random.Generator) -> list[Camera]:
+    """A hemisphere of cameras 3 units from the object, three rings of elevation."""
+    f = 1.1 * width
+    K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
+    cams = []
+    for i in range(n):
+        elev = np.radians((20, 38, 56)[i % 3] + rng.uniform(-3, 3))
+        azim = 2 * np.pi * i / n + rng.uniform(-0.05, 0.05)
+        center = 3.0 * np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
+        R, t = _look_at(center, np.array([0, 0, 0.2]) + rng.normal(0, 0.03, 3), np.array([0, 0, 1.0]))
+        cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
+    return cams
+
+
+def room_cameras(n: int, width: int, height: int, rng: np.random.Generator) -> list[Camera]:
+    """Cameras near the room's middle looking outwards all around, slightly downwards."""
+    f = 0.6 * width
+    K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
+    cams = []
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        center = np.array([0.9 * np.cos(a) - 0.2, 0.7 * np.sin(a), 1.5 + rng.uniform(-0.15, 0.15)])
+        yaw = a + np.pi / 2 * (1 if i % 2 else -0.3) + rng.uniform(-0.2, 0.2)
+        target = center + np.array([np.cos(yaw), np.sin(yaw), -0.35 + rng.uniform(-0.1, 0.1)])
+        R, t = _look_at(center, target, np.array([0, 0, 1.0]))
+        cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
+    return cams
+
+
+def shade(parts: list[Part], hits, seed: int) -> np.ndarray:
+    """Lambertian colour under a fixed light (view independent), background black."""
+    rgb = np.zeros(hits.depth.shape + (3,))
+    for k, part in enumerate(parts):
+        sel = hits.geometry == k
+        if sel.any():
+            albedo = part.material.albedo(hits.points[sel], seed + 7919 * k)
+            rgb[sel] = albedo * (0.35 + 0.65 * np.clip(hits.normal[sel] @ LIGHT, 0, 1))[:, None]
+    return rgb
+
+
+def surface_points(mesh, cams: list[Camera], caster: MeshRaycaster, count: int,
+                   rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray]]:
+    """A stand-in for SfM points: surface samples seen (unoccluded) by at least two views."""
+    pts = sample_surface(np.asarray(mesh.vertices), np.asarray(mesh.triangles), 4 * count, rng)
+    views: list[list[int]] = [[] for _ in range(len(pts))]
+    for ci, cam in enumerate(cams):
+        uv, z = cam.project(pts)
+        inside = np.flatnonzero((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height))
+        seen = caster.cast_uv(cam, uv[inside]).depth
+        for i in inside[np.abs(seen - z[inside]) < 1e-4 * z[inside]]:
+            views[i].append(ci)
+    keep = [i for i, v in enumerate(views) if len(v) >= 2][:count]
+    return pts[keep], [np.array(views[i]) for i in keep]
+
+
+def point_colors(parts: list[Part], caster: MeshRaycaster, cams: list[Camera], pts: np.ndarray,
+                 pviews: list[np.ndarray], seed: int) -> np.ndarray:
+    """Shaded colour of each sparse point as its first observing view sees it."""
+    colors = np.zeros((len(pts), 3), np.uint8)
+    first = np.array([v[0] for v in pviews])
+    for ci, cam in enumerate(cams):
+        sel = first == ci
+        if sel.any():
+            hits = caster.cast_uv(cam, cam.project(pts[sel])[0])
+            colors[sel] = np.clip(shade(parts, hits, seed) * 255 + 0.5, 0, 255).astype(np.uint8)
+    return colors
+
+
+def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: int = 240, seed: int = 0,
+             images_only: bool = False, supersample: int = 2, points: int = 3000) -> Path:
+    """Render the synthetic scene ``kind`` into ``out`` (written atomically)."""
+    import open3d as o3d
+
+    if kind not in KINDS:
+        raise ValueError(f"unknown synthetic scene kind {kind!r}; choose one of {', '.join(KINDS)}")
+    rng = np.random.default_rng(seed)
+    parts = object_parts() if kind == "object" else room_parts()
+    for part in parts:
+        part.mesh = refine(part.mesh, 0.03 if kind == "object" else 0.08)
+    cams = (object_cameras if kind == "object" else room_cameras)(views, width, height, rng)
+    caster = MeshRaycaster([p.mesh for p in parts])
+    grid = (np.arange(supersample) + 0.5) / supersample
+    offsets = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
+    seen = [set() for _ in parts]
+    with atomic_dir(out) as tmp:
+        for cam in tqdm(cams, desc=f"synth {kind}", unit="view"):
+            hits = caster.cast(cam, offsets)
+            for k in range(len(parts)):
+                seen[k].update(np.unique(hits.triangle[hits.geometry == k]).tolist())
+            rgb = shade(parts, hits, seed).mean(axis=0)
+            write_image(tmp / "images" / cam.name, np.clip(rgb * 255 + 0.5, 0, 255).astype(np.uint8))
+            if kind == "object":
+                centre = caster.cast(cam)
+                for k in range(len(parts)):
+                    seen[k].update(np.unique(centre.triangle[centre.geometry == k]).tolist())
+                fg = np.isin(centre.geometry, [k for k, p in enumerate(parts) if p.foreground])
+                write_image(tmp / "masks" / cam.name, (fg * 255).astype(np.uint8))
+        mesh = o3d.geometry.TriangleMesh()
+        for part, tris in zip(parts, seen):
+            observed = o3d.geometry.TriangleMesh(part.mesh)
+            unseen = np.ones(len(observed.triangles), dtype=bool)
+            unseen[list(tris)] = False
+            observed.remove_triangles_by_mask(unseen)
+            observed.remove_unreferenced_vertices()
+            mesh += observed
+        pts, pviews = surface_points(mesh, cams, caster, points, rng)
+        colors = point_colors(parts, caster, cams, pts, pviews, seed)
+        scene = Scene(root=out, cameras=cams, points=pts, point_colors=colors, point_views=pviews)
+        write_colmap(scene, tmp / ("gt/sparse/0" if images_only else "sparse/0"))
+        (tmp / "gt").mkdir(exist_ok=True)
+        o3d.io.write_triangle_mesh(str(tmp / "gt" / "mesh.ply"), mesh)
+        meta = {"kind": "object" if kind == "object" else "scene", "gt_mesh": "gt/mesh.ply",
+                "generator": {"kind": kind, "views": views, "width": width, "height": height, "seed": seed}}
+        if kind == "object":
+            meta["object_radius"] = 1.0
+        (tmp / METADATA).write_text(json.dumps(meta, indent=2))
+    return out
