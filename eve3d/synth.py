@@ -181,28 +181,30 @@ def _look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np
     return R, -R @ center
 
 
-def object_cameras(n: int, width: int, height: int, rng: np.random.Generator) -> list[Camera]:
-    """A hemisphere of cameras 3 units from the object, three rings of elevation."""
+def object_cameras(n: int, width: int, height: int, rng: np.random.Generator, arc: float = 360.0) -> list[Camera]:
+    """Cameras 3 units from the object on a spiral over ``arc`` degrees of azimuth whose
+    elevation swings smoothly between 28° and 58°, so that neighbours overlap well."""
     f = 1.1 * width
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
     cams = []
     for i in range(n):
-        elev = np.radians((20, 38, 56)[i % 3] + rng.uniform(-3, 3))
-        azim = 2 * np.pi * i / n + rng.uniform(-0.05, 0.05)
+        frac = i / n if arc >= 360 else i / max(n - 1, 1)
+        elev = np.radians(43 - 15 * np.cos(4 * np.pi * frac) + rng.uniform(-2, 2))
+        azim = np.radians(arc) * (frac - (0 if arc >= 360 else 0.5)) + rng.uniform(-0.02, 0.02)
         center = 3.0 * np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
         R, t = _look_at(center, np.array([0, 0, 0.2]) + rng.normal(0, 0.03, 3), np.array([0, 0, 1.0]))
         cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
     return cams
 
 
-def room_cameras(n: int, width: int, height: int, rng: np.random.Generator) -> list[Camera]:
-    """Cameras near the room's middle looking outwards all around, slightly downwards."""
+def room_cameras(n: int, width: int, height: int, rng: np.random.Generator, arc: float = 360.0) -> list[Camera]:
+    """Cameras on a loop around the room (about 2 m across) looking along and across it, slightly downwards."""
     f = 0.6 * width
     K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
     cams = []
     for i in range(n):
-        a = 2 * np.pi * i / n
-        center = np.array([0.9 * np.cos(a) - 0.2, 0.7 * np.sin(a), 1.5 + rng.uniform(-0.15, 0.15)])
+        a = np.radians(arc) * i / n
+        center = np.array([1.9 * np.cos(a) - 0.2, 1.4 * np.sin(a), 1.5 + rng.uniform(-0.15, 0.15)])
         yaw = a + np.pi / 2 * (1 if i % 2 else -0.3) + rng.uniform(-0.2, 0.2)
         target = center + np.array([np.cos(yaw), np.sin(yaw), -0.35 + rng.uniform(-0.1, 0.1)])
         R, t = _look_at(center, target, np.array([0, 0, 1.0]))
@@ -250,8 +252,9 @@ def point_colors(parts: list[Part], caster: MeshRaycaster, cams: list[Camera], p
 
 
 def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: int = 240, seed: int = 0,
-             images_only: bool = False, supersample: int = 2, points: int = 3000) -> Path:
-    """Render the synthetic scene ``kind`` into ``out`` (written atomically)."""
+             images_only: bool = False, supersample: int = 2, points: int = 3000, arc: float = 360.0) -> Path:
+    """Render the synthetic scene ``kind`` into ``out`` (written atomically); ``arc`` limits
+    the cameras' azimuth range in degrees (a DTU-like front arc for object scenes)."""
     import open3d as o3d
 
     if kind not in KINDS:
@@ -260,7 +263,7 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
     parts = object_parts() if kind == "object" else room_parts()
     for part in parts:
         part.mesh = refine(part.mesh, 0.03 if kind == "object" else 0.08)
-    cams = (object_cameras if kind == "object" else room_cameras)(views, width, height, rng)
+    cams = (object_cameras if kind == "object" else room_cameras)(views, width, height, rng, arc)
     caster = MeshRaycaster([p.mesh for p in parts])
     grid = (np.arange(supersample) + 0.5) / supersample
     offsets = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
@@ -293,7 +296,8 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
         (tmp / "gt").mkdir(exist_ok=True)
         o3d.io.write_triangle_mesh(str(tmp / "gt" / "mesh.ply"), mesh)
         meta = {"kind": "object" if kind == "object" else "scene", "gt_mesh": "gt/mesh.ply",
-                "generator": {"kind": kind, "views": views, "width": width, "height": height, "seed": seed}}
+                "generator": {"kind": kind, "views": views, "width": width, "height": height, "seed": seed,
+                              "arc": arc}}
         if kind == "object":
             meta["object_radius"] = 1.0
         (tmp / METADATA).write_text(json.dumps(meta, indent=2))

@@ -10,6 +10,15 @@ from eve3d.scene import Camera, Eve3dError, Scene
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 
 
+def import_pycolmap():
+    """pycolmap, imported after open3d. In the other order (pycolmap 4.2, open3d 0.20), the
+    first PNG or npz write after an open3d ray cast aborts in zlib's deflateEnd."""
+    import open3d  # noqa: F401
+    import pycolmap
+
+    return pycolmap
+
+
 class NeedsUndistortion(Eve3dError):
     """The model has cameras with distortion: ``eve3d sfm`` undistorts them to PINHOLE."""
 
@@ -22,7 +31,7 @@ def model_file(model_dir: Path, what: str) -> Path:
 
 def read_reconstruction(model_dir: Path):
     """pycolmap.Reconstruction of ``model_dir``, with a clear error when it cannot be read."""
-    import pycolmap
+    pycolmap = import_pycolmap()
 
     if not model_file(model_dir, "cameras").exists():
         raise Eve3dError(f"{model_dir}: no COLMAP model here (cameras.bin or cameras.txt)")
@@ -103,7 +112,7 @@ def write_colmap(scene: Scene, out_dir: Path, binary: bool = True) -> None:
     Sparse points are written with their tracks; each observation becomes a 2D point at the
     projection of the 3D point.
     """
-    import pycolmap
+    pycolmap = import_pycolmap()
 
     rec = pycolmap.Reconstruction()
     camera_ids: dict[tuple, int] = {}

@@ -1,0 +1,32 @@
+# Set-up and entry points; README.md opens with `make demo` and `make test`.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+JOBS ?= 2
+
+.PHONY: demo test install clean
+
+demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print the table
+	$(BIN)/snakemake -c$(JOBS) --quiet rules progress
+	@$(BIN)/python -m eve3d summary results/*/*/metrics.json --out results/summary.csv
+
+test: $(STAMP)  ## the test suite
+	$(BIN)/python -m pytest -q
+
+install: $(STAMP)
+
+# open3d needs libusb-1.0 from the system; torch is pinned and installed first, because a
+# loose torch requirement on a machine without it pulls a multi-GB CUDA build.
+$(STAMP): pyproject.toml
+	@ldconfig -p | grep -q libusb-1.0 || { \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q -e '.[test]'
+	@touch $@
+
+clean:
+	rm -rf results .snakemake

@@ -1,0 +1,15 @@
+# eve3d workflow: `snakemake -c2` runs every scene of config/config.yaml; see README.md.
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/data.smk"
+include: "workflow/rules/depth.smk"
+include: "workflow/rules/mesh.smk"
+include: "workflow/rules/evaluate.smk"
+
+
+rule all:
+    input:
+        f"{RESULTS}/summary.csv",
+    default_target: True

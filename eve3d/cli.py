@@ -1,0 +1,199 @@
+"""``eve3d <stage> ...``: one subcommand per stage; every Snakemake rule calls one of these."""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from pathlib import Path
+
+from eve3d.scene import Eve3dError
+
+
+def _cmd_synth(a: argparse.Namespace) -> None:
+    from eve3d.synth import generate
+
+    generate(a.kind, Path(a.out), views=a.views, width=a.width, height=a.height, seed=a.seed,
+             images_only=a.images_only, arc=a.arc)
+    print(f"wrote {a.out}")
+
+
+def _cmd_sfm(a: argparse.Namespace) -> None:
+    from eve3d.sfm import SfmSettings, run_sfm
+
+    settings = SfmSettings(matcher=a.matcher, camera_model=a.camera_model, single_camera=not a.per_image_camera,
+                           max_image_size=a.max_image_size, min_registered_fraction=a.min_registered_fraction,
+                           seed=a.seed)
+    run_sfm(Path(a.dataset), Path(a.out), settings)
+    print(f"wrote {a.out}")
+
+
+def _cmd_stereo_depth(a: argparse.Namespace) -> None:
+    from eve3d.io import load_scene
+    from eve3d.priors.oracle import oracle_priors
+
+    scene = load_scene(a.scene)
+    oracle_priors(scene, Path(a.out), Path(a.gt_mesh) if a.gt_mesh else None, preview=not a.no_preview)
+    print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
+
+
+def _cmd_mesh(a: argparse.Namespace) -> None:
+    from eve3d.io import load_scene
+    from eve3d.mesh import MeshSettings, fuse, write_mesh
+
+    scene = load_scene(a.scene, check_images=False)
+    if a.kind:
+        scene.kind = a.kind
+    settings = MeshSettings(voxel=a.voxel, coarsen=a.coarsen, trunc_factor=a.trunc_factor, depth_max=a.depth_max,
+                            min_confidence=a.min_confidence, weight_threshold=a.weight_threshold,
+                            largest_cluster=a.largest_cluster, min_cluster_fraction=a.min_cluster_fraction)
+    mesh = fuse(scene, Path(a.depth), settings)
+    write_mesh(mesh, Path(a.out))
+    print(f"wrote {a.out}: {len(mesh.vertices)} vertices, {len(mesh.triangles)} triangles")
+
+
+def _cmd_evaluate(a: argparse.Namespace) -> None:
+    from eve3d.evaluate import TAU_FRACTION, evaluate_dtu, evaluate_synthetic
+    from eve3d.fileio import atomic_path
+    from eve3d.io import load_scene
+
+    scene = load_scene(a.scene, check_images=False) if a.scene else None
+    if a.protocol == "dtu":
+        if scene is None or not (a.obs_mask and a.plane):
+            raise Eve3dError("the DTU protocol needs --scene (the DTU scan folder), --obs-mask and --plane")
+        metrics = evaluate_dtu(Path(a.mesh), scene, Path(a.gt), Path(a.obs_mask), Path(a.plane), density=a.dtu_density)
+    else:
+        tau = a.tau
+        if tau is None and scene is not None:
+            tau = a.tau_fraction * scene.radius
+        metrics = evaluate_synthetic(Path(a.mesh), Path(a.gt), scene, tau)
+        how = "given" if a.tau else (f"{a.tau_fraction:g} × scene radius" if scene else f"{TAU_FRACTION:g} × GT half-diagonal")
+        print(f"tau = {metrics['tau']:.5g} ({how})")
+    metrics.update({"scene": a.scene_name, "method": a.method} if a.scene_name else {})
+    with atomic_path(Path(a.out)) as tmp:
+        tmp.write_text(json.dumps(metrics, indent=2))
+    print(format_table([metrics]))
+
+
+SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "accuracy", "completeness", "chamfer",
+                   "precision", "recall", "fscore")
+
+
+def format_table(rows: list[dict]) -> str:
+    """A plain-text table of metric rows (missing values as '-')."""
+    def cell(v):
+        return f"{v:.4g}" if isinstance(v, float) else ("-" if v is None else str(v))
+
+    cols = [c for c in SUMMARY_COLUMNS if any(c in r for r in rows)]
+    table = [cols] + [[cell(r.get(c)) for c in cols] for r in rows]
+    widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
+    lines = ["  ".join(v.ljust(w) for v, w in zip(row, widths)) for row in table]
+    return "\n".join([lines[0], "  ".join("-" * w for w in widths)] + lines[1:])
+
+
+def _cmd_summary(a: argparse.Namespace) -> None:
+    from eve3d.fileio import atomic_path
+
+    rows = []
+    for path in map(Path, a.metrics):
+        try:
+            m = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise Eve3dError(f"{path}: cannot read metrics ({e})") from None
+        # results/{scene}/{method}/metrics.json names the row when the file does not.
+        m.setdefault("scene", path.parent.parent.name)
+        m.setdefault("method", path.parent.name)
+        rows.append(m)
+    rows.sort(key=lambda r: (r["scene"], r["method"]))
+    with atomic_path(Path(a.out)) as tmp:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(rows)
+    print(format_table(rows))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="eve3d", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("synth", help="generate a synthetic scene with exact ground truth")
+    s.add_argument("kind", choices=["object", "room"])
+    s.add_argument("out", help="output dataset folder (replaced atomically)")
+    s.add_argument("--views", type=int, default=32)
+    s.add_argument("--width", type=int, default=320)
+    s.add_argument("--height", type=int, default=240)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--arc", type=float, default=360.0, help="azimuth range of the cameras in degrees")
+    s.add_argument("--images-only", action="store_true", help="hide the poses under gt/ (to exercise SfM)")
+    s.set_defaults(func=_cmd_synth)
+
+    s = sub.add_parser("sfm", help="pycolmap SfM (or undistortion only) → images/ + sparse/0 (PINHOLE)")
+    s.add_argument("dataset", help="folder with images/ (and optionally a distorted COLMAP model)")
+    s.add_argument("out")
+    s.add_argument("--matcher", choices=["exhaustive", "sequential"], default="exhaustive")
+    s.add_argument("--camera-model", default="SIMPLE_RADIAL")
+    s.add_argument("--per-image-camera", action="store_true", help="one camera per image instead of one shared")
+    s.add_argument("--max-image-size", type=int, default=3200)
+    s.add_argument("--min-registered-fraction", type=float, default=0.9)
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=_cmd_sfm)
+
+    s = sub.add_parser("stereo-depth", help="depth priors per view ({view}.npz + PNG previews)")
+    s.add_argument("--scene", required=True, help="posed dataset folder")
+    s.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    s.add_argument("--backend", choices=["oracle"], default="oracle",
+                   help="oracle = exact depth of a scene with a known mesh")
+    s.add_argument("--gt-mesh", help="mesh for the oracle (default: the scene's own GT mesh)")
+    s.add_argument("--no-preview", action="store_true")
+    s.set_defaults(func=_cmd_stereo_depth)
+
+    s = sub.add_parser("mesh", help="TSDF-fuse per-view depth maps into mesh.ply")
+    s.add_argument("--scene", required=True)
+    s.add_argument("--depth", required=True, help="folder of {view}.npz depth maps")
+    s.add_argument("--out", required=True)
+    s.add_argument("--kind", choices=["object", "scene"], help="override the scene kind")
+    s.add_argument("--voxel", type=float)
+    s.add_argument("--coarsen", type=float, default=1.0)
+    s.add_argument("--trunc-factor", type=float, default=4.0)
+    s.add_argument("--depth-max", type=float)
+    s.add_argument("--min-confidence", type=float, default=0.5)
+    s.add_argument("--weight-threshold", type=float, default=1.0)
+    s.add_argument("--largest-cluster", action=argparse.BooleanOptionalAction, default=None)
+    s.add_argument("--min-cluster-fraction", type=float, default=0.01)
+    s.set_defaults(func=_cmd_mesh)
+
+    s = sub.add_parser("evaluate", help="mesh vs ground truth → metrics.json")
+    s.add_argument("--mesh", required=True)
+    s.add_argument("--gt", required=True, help="GT mesh (synthetic) or DTU stl point cloud")
+    s.add_argument("--out", required=True)
+    s.add_argument("--scene", help="dataset folder: scene radius for τ; cameras and masks for DTU")
+    s.add_argument("--protocol", choices=["synthetic", "dtu"], default="synthetic")
+    s.add_argument("--tau", type=float)
+    s.add_argument("--tau-fraction", type=float, default=0.005)
+    s.add_argument("--obs-mask", help="DTU ObsMask{scan}_10.mat")
+    s.add_argument("--plane", help="DTU Plane{scan}.mat")
+    s.add_argument("--dtu-density", type=float, default=0.2)
+    s.add_argument("--scene-name")
+    s.add_argument("--method")
+    s.set_defaults(func=_cmd_evaluate)
+
+    s = sub.add_parser("summary", help="gather metrics.json files into a CSV and print the table")
+    s.add_argument("metrics", nargs="+")
+    s.add_argument("--out", required=True)
+    s.set_defaults(func=_cmd_summary)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except Eve3dError as e:
+        print(f"eve3d {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

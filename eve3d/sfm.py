@@ -1,0 +1,95 @@
+"""SfM stage (``eve3d sfm``): images → undistorted PINHOLE COLMAP model, with pycolmap.
+
+SIFT extraction (one shared camera by default), exhaustive or sequential matching,
+incremental mapping, undistortion. A dataset that already has a COLMAP model with
+distortion is only undistorted. Output: ``OUT/images`` and ``OUT/sparse/0``.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from eve3d.fileio import atomic_dir, check_image, list_images
+from eve3d.io.colmap import import_pycolmap
+from eve3d.io.loader import METADATA, find_colmap_model
+from eve3d.scene import Eve3dError
+
+MATCHERS = ("exhaustive", "sequential")
+
+
+@dataclass
+class SfmSettings:
+    matcher: str = "exhaustive"
+    """'exhaustive' for small unordered sets, 'sequential' for ordered captures (video)."""
+    camera_model: str = "SIMPLE_RADIAL"
+    """COLMAP model estimated for the images (undistorted to PINHOLE afterwards)."""
+    single_camera: bool = True
+    """All images share one camera (one device, fixed zoom)."""
+    max_image_size: int = 3200
+    min_registered_fraction: float = 0.9
+    """Fail when fewer than this fraction of the images are registered."""
+    seed: int = 0
+
+
+def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Path:
+    """Reconstruct (or only undistort) ``dataset`` into ``out``; returns ``out``."""
+    pycolmap = import_pycolmap()
+
+    s = settings or SfmSettings()
+    if s.matcher not in MATCHERS:
+        raise Eve3dError(f"sfm matcher {s.matcher!r} unknown; choose one of {', '.join(MATCHERS)}")
+    image_dir = dataset / "images"
+    images = list_images(image_dir)
+    for path in images:
+        check_image(path)
+    with atomic_dir(out) as tmp:
+        model = find_colmap_model(dataset)
+        if model is None:
+            model = _reconstruct(image_dir, [p.name for p in images], tmp / "work", s)
+        pycolmap.undistort_images(str(tmp / "undistorted"), str(model), str(image_dir), output_type="COLMAP")
+        (tmp / "sparse").mkdir()
+        shutil.move(tmp / "undistorted" / "sparse", tmp / "sparse" / "0")
+        shutil.move(tmp / "undistorted" / "images", tmp / "images")
+        for scratch in ("undistorted", "work"):
+            shutil.rmtree(tmp / scratch, ignore_errors=True)
+        if (dataset / METADATA).exists():
+            # Only the kind carries over: GT mesh and object size live in the dataset's own frame.
+            kind = json.loads((dataset / METADATA).read_text()).get("kind")
+            if kind:
+                (tmp / METADATA).write_text(json.dumps({"kind": kind}, indent=2))
+    return out
+
+
+def _reconstruct(image_dir: Path, names: list[str], work: Path, s: SfmSettings) -> Path:
+    """SIFT + matching + incremental mapping; returns the folder of the largest model."""
+    pycolmap = import_pycolmap()
+
+    work.mkdir(parents=True)
+    db = work / "database.db"
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = s.camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = s.max_image_size
+    pycolmap.extract_features(str(db), str(image_dir), image_names=names,
+                              camera_mode=pycolmap.CameraMode.SINGLE if s.single_camera else pycolmap.CameraMode.AUTO,
+                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+    match = pycolmap.match_exhaustive if s.matcher == "exhaustive" else pycolmap.match_sequential
+    match(str(db), device=pycolmap.Device.cpu)
+    options = pycolmap.IncrementalPipelineOptions()
+    options.random_seed = s.seed
+    models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), options)
+    if not models:
+        raise Eve3dError(f"{image_dir}: SfM could not register any image pair (too little texture or overlap?)")
+    best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())
+    registered = {img.name for img in best.images.values() if img.has_pose}
+    if len(registered) < s.min_registered_fraction * len(names):
+        left_out = sorted(set(names) - registered)
+        raise Eve3dError(
+            f"{image_dir}: SfM registered {len(registered)} of {len(names)} images "
+            f"(below the required fraction {s.min_registered_fraction:g}); left out: {', '.join(left_out)}"
+        )
+    model_dir = work / "sparse" / str(best_id)
+    best.write_binary(str(model_dir))
+    return model_dir

@@ -1,0 +1,27 @@
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from eve3d.io import load_scene
+from eve3d.synth import generate
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session")
+def object_dataset(tmp_path_factory) -> Path:
+    """The embedded default object scene at the CPU preset's size (320×240, 32 views)."""
+    return generate("object", tmp_path_factory.mktemp("data") / "object")
+
+
+@pytest.fixture(scope="session")
+def object_scene(object_dataset):
+    return load_scene(object_dataset)
+
+
+def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Run ``python -m eve3d ARGS`` in a fresh process, as the workflow does."""
+    return subprocess.run([sys.executable, "-m", "eve3d", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd or REPO)

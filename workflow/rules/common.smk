@@ -1,0 +1,110 @@
+# Configuration and input functions shared by every rule.
+import os
+import shlex
+import sys
+from pathlib import Path
+
+sys.path.insert(0, workflow.basedir)
+from eve3d.config import resolve_config
+from eve3d.io.loader import has_poses
+from eve3d.scene import Eve3dError
+
+try:
+    _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")
+except Eve3dError as e:
+    raise WorkflowError(str(e))
+config.clear()
+config.update(_resolved)
+
+RESULTS = config["results"]
+SCENES = list(config["scenes"])
+METHODS = config["methods"]
+# Jobs run `python -m eve3d`: the interpreter that runs Snakemake (a venv) comes first on
+# PATH, a conda env (--use-conda) prepends its own; PYTHONPATH finds this checkout's package.
+os.environ["PATH"] = os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", "")
+EVE3D = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPATH}} python -m eve3d"
+CONDA_ENV = "../../envs/eve3d.yaml"
+
+wildcard_constraints:
+    scene="|".join(map(re.escape, SCENES)) if SCENES else "$^",
+    method="|".join(map(re.escape, METHODS)) if METHODS else "$^",
+
+
+def scene_config(scene):
+    return config["scenes"][scene]
+
+
+def raw_dataset(wildcards):
+    """The dataset as the user brings it (generated for synthetic scenes)."""
+    sc = scene_config(wildcards.scene)
+    return f"{RESULTS}/{wildcards.scene}/input" if "synthetic" in sc else sc["path"]
+
+
+def needs_sfm(scene):
+    sc = scene_config(scene)
+    if "synthetic" in sc:
+        return False  # generated with exact poses
+    return not has_poses(Path(sc["path"]))
+
+
+def posed_dataset(wildcards):
+    """The dataset with PINHOLE poses: the input itself, or the SfM stage's output."""
+    if needs_sfm(wildcards.scene):
+        return f"{RESULTS}/{wildcards.scene}/sfm"
+    return raw_dataset(wildcards)
+
+
+def gt_mesh(wildcards):
+    """GT mesh file (inside the generated dataset for synthetic scenes)."""
+    sc = scene_config(wildcards.scene)
+    if "gt_mesh" in sc:
+        return sc["gt_mesh"]
+    if "synthetic" in sc:
+        return f"{RESULTS}/{wildcards.scene}/input/gt/mesh.ply"
+    raise WorkflowError(f"scenes.{wildcards.scene}: no gt_mesh (needed by the oracle and the synthetic protocol)")
+
+
+def gt_input(wildcards):
+    """What a rule that reads the GT mesh depends on: the generated dataset folder (a
+    directory output holds the mesh) or the user's mesh file."""
+    return raw_dataset(wildcards) if "synthetic" in scene_config(wildcards.scene) else gt_mesh(wildcards)
+
+
+def depth_source(wildcards):
+    """Per-view depth maps that a TSDF method fuses."""
+    return {"oracle": f"{RESULTS}/{wildcards.scene}/priors/oracle"}[wildcards.method]
+
+
+def mesh_args(wildcards):
+    m = config["mesh"]
+    args = [f"--coarsen {m['coarsen']}", f"--trunc-factor {m['trunc_factor']}",
+            f"--min-confidence {m['min_confidence']}", f"--weight-threshold {m['weight_threshold']}",
+            f"--min-cluster-fraction {m['min_cluster_fraction']}"]
+    if m["voxel"] is not None:
+        args.append(f"--voxel {m['voxel']}")
+    if m["depth_max"] is not None:
+        args.append(f"--depth-max {m['depth_max']}")
+    if m["largest_cluster"] is not None:
+        args.append("--largest-cluster" if m["largest_cluster"] else "--no-largest-cluster")
+    if "kind" in scene_config(wildcards.scene):
+        args.append(f"--kind {scene_config(wildcards.scene)['kind']}")
+    return " ".join(args)
+
+
+def evaluate_inputs(wildcards):
+    sc = scene_config(wildcards.scene)
+    inputs = {"mesh": f"{RESULTS}/{wildcards.scene}/{wildcards.method}/mesh.ply", "scene": posed_dataset(wildcards)}
+    if "dtu" in sc:
+        inputs.update(gt=sc["dtu"]["stl"], obs_mask=sc["dtu"]["obs_mask"], plane=sc["dtu"]["plane"])
+    else:
+        inputs["gt"] = gt_input(wildcards)
+    return inputs
+
+
+def evaluate_args(wildcards, input):
+    e = config["evaluate"]
+    if "dtu" in scene_config(wildcards.scene):
+        return (f"--gt {input.gt} --protocol dtu --obs-mask {input.obs_mask} --plane {input.plane}"
+                f" --dtu-density {e['dtu_density']}")
+    tau = f"--tau {e['tau']}" if e["tau"] is not None else f"--tau-fraction {e['tau_fraction']}"
+    return f"--gt {gt_mesh(wildcards)} {tau}"

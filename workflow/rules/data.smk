@@ -1,0 +1,38 @@
+# Data: generate synthetic scenes; SfM for image-only datasets.
+
+
+def synth_args(wildcards):
+    params = {**config["synthetic"], **scene_config(wildcards.scene)["synthetic"]}
+    return (f"{params['kind']} --views {params['views']} --width {params['width']} --height {params['height']} "
+            f"--seed {params['seed']} --arc {params['arc']}")
+
+
+rule synth:
+    output:
+        directory(f"{RESULTS}/{{scene}}/input"),
+    params:
+        args=synth_args,
+    log:
+        f"{RESULTS}/logs/{{scene}}/synth.log",
+    conda:
+        CONDA_ENV
+    shell:
+        "{EVE3D} synth {params.args} {output} > {log} 2>&1"
+
+
+rule sfm:
+    input:
+        raw_dataset,
+    output:
+        directory(f"{RESULTS}/{{scene}}/sfm"),
+    params:
+        s=lambda wc: config["sfm"],
+    log:
+        f"{RESULTS}/logs/{{scene}}/sfm.log",
+    threads: 4
+    conda:
+        CONDA_ENV
+    shell:
+        "{EVE3D} sfm {input} {output} --matcher {params.s[matcher]} --camera-model {params.s[camera_model]}"
+        " --max-image-size {params.s[max_image_size]} --min-registered-fraction {params.s[min_registered_fraction]}"
+        " --seed {params.s[seed]} > {log} 2>&1"

@@ -1,0 +1,28 @@
+# Metrics per scene and method, and the summary table over all of them.
+
+
+rule evaluate:
+    input:
+        unpack(evaluate_inputs),
+    output:
+        f"{RESULTS}/{{scene}}/{{method}}/metrics.json",
+    params:
+        args=evaluate_args,
+    log:
+        f"{RESULTS}/logs/{{scene}}/evaluate_{{method}}.log",
+    conda:
+        CONDA_ENV
+    shell:
+        "{EVE3D} evaluate --mesh {input.mesh} --scene {input.scene} --out {output}"
+        " --scene-name {wildcards.scene} --method {wildcards.method} {params.args} > {log} 2>&1"
+
+
+rule summary:
+    input:
+        expand(f"{RESULTS}/{{scene}}/{{method}}/metrics.json", scene=SCENES, method=METHODS),
+    output:
+        f"{RESULTS}/summary.csv",
+    conda:
+        CONDA_ENV
+    shell:
+        "{EVE3D} summary {input} --out {output}"
