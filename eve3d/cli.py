@@ -23,7 +23,7 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 
     settings = SfmSettings(matcher=a.matcher, camera_model=a.camera_model, single_camera=not a.per_image_camera,
                            max_image_size=a.max_image_size, min_registered_fraction=a.min_registered_fraction,
-                           seed=a.seed)
+                           seed=a.seed, threads=a.threads)
     run_sfm(Path(a.dataset), Path(a.out), settings)
     print(f"wrote {a.out}")
 
@@ -77,6 +77,20 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
 
 SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "accuracy", "completeness", "chamfer",
                    "precision", "recall", "fscore")
+
+
+def _cmd_bench(a: argparse.Namespace) -> None:
+    from eve3d import bench
+
+    sizes = bench.RASTERIZER_SIZES
+    if a.sizes:
+        try:
+            sizes = [tuple(int(v) for v in item.split("x")) for item in a.sizes.split(",")]
+            assert all(len(s) == 3 for s in sizes)
+        except (ValueError, AssertionError):
+            raise Eve3dError(f"--sizes {a.sizes!r}: expected GAUSSIANSxWIDTHxHEIGHT[,...], e.g. 5000x160x120")
+    rows = bench.bench_rasterizer(sizes, backend=a.backend, repeats=a.repeats)
+    print(bench.rasterizer_json(rows) if a.json else bench.format_rasterizer_table(rows))
 
 
 def format_table(rows: list[dict]) -> str:
@@ -137,6 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--max-image-size", type=int, default=3200)
     s.add_argument("--min-registered-fraction", type=float, default=0.9)
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--threads", type=int, default=1,
+                   help="1 (default): bit-reproducible; -1: every core, faster but varies between runs")
     s.set_defaults(func=_cmd_sfm)
 
     s = sub.add_parser("stereo-depth", help="depth priors per view ({view}.npz + PNG previews)")
@@ -182,7 +198,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("metrics", nargs="+")
     s.add_argument("--out", required=True)
     s.set_defaults(func=_cmd_summary)
+
+    _add_bench_parser(sub)
     return p
+
+
+def _add_bench_parser(sub) -> None:
+    s = sub.add_parser("bench", help="speed and memory benchmarks (print a table)")
+    what = s.add_subparsers(dest="benchmark", required=True)
+    r = what.add_parser("rasterizer", help="forward/backward time and peak memory of one render")
+    r.add_argument("--sizes", help="GAUSSIANSxWIDTHxHEIGHT,... (default 5000x160x120,20000x320x240,100000x640x480)")
+    r.add_argument("--backend", choices=["auto", "cpu", "torch", "gsplat"], default="auto")
+    r.add_argument("--repeats", type=int, default=5, help="timed runs per size (median; one more warms up)")
+    r.add_argument("--json", action="store_true", help="machine-readable output")
+    r.set_defaults(func=_cmd_bench)
 
 
 def main(argv: list[str] | None = None) -> int:

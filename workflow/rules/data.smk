@@ -27,12 +27,14 @@ rule sfm:
         directory(f"{RESULTS}/{{scene}}/sfm"),
     params:
         s=lambda wc: config["sfm"],
+        per_image=lambda wc: "" if config["sfm"]["single_camera"] else " --per-image-camera",
     log:
         f"{RESULTS}/logs/{{scene}}/sfm.log",
-    threads: 4
+    threads: lambda wc: config["sfm"]["threads"] if config["sfm"]["threads"] > 0 else workflow.cores
     conda:
         CONDA_ENV
     shell:
         "{EVE3D} sfm {input} {output} --matcher {params.s[matcher]} --camera-model {params.s[camera_model]}"
         " --max-image-size {params.s[max_image_size]} --min-registered-fraction {params.s[min_registered_fraction]}"
-        " --seed {params.s[seed]} > {log} 2>&1"
+        " --seed {params.s[seed]} --threads {params.s[threads]}"
+        "{params.per_image} > {log} 2>&1"

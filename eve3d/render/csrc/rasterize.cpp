@@ -1,0 +1,223 @@
+// Tile-based Gaussian compositing on the CPU (forward and backward), gsplat's rules:
+// alpha = min(0.999, o * exp(-sigma)); skip alpha < 1/255 or sigma < 0; stop before the
+// Gaussian that would take the transmittance T to <= 1e-4; pixel centres at +0.5.
+// Gaussians arrive sorted front to back, so binning them in order keeps every tile's list
+// depth-sorted. The backward pass walks each pixel's list back to front, recovering T by
+// division as gsplat does, and accumulates gradients in per-thread buffers.
+#include <torch/extension.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+namespace {
+
+constexpr int64_t TILE = 16;
+constexpr double ALPHA_MIN = 1.0 / 255.0;
+constexpr double ALPHA_MAX = 0.999;
+constexpr double T_MIN = 1e-4;
+
+int max_threads() {
+#ifdef _OPENMP
+    return omp_get_max_threads();
+#else
+    return 1;
+#endif
+}
+
+int thread_id() {
+#ifdef _OPENMP
+    return omp_get_thread_num();
+#else
+    return 0;
+#endif
+}
+
+// Per-tile lists of Gaussian indices (CSR): offsets (tiles + 1) and ids.
+std::vector<torch::Tensor> bin_tiles(const torch::Tensor& boxes, int64_t width, int64_t height) {
+    const int64_t tiles_x = (width + TILE - 1) / TILE, tiles_y = (height + TILE - 1) / TILE;
+    const int64_t n = boxes.size(0);
+    auto b = boxes.accessor<int64_t, 2>();
+    std::vector<int64_t> counts(tiles_x * tiles_y + 1, 0);
+    for (int64_t g = 0; g < n; ++g) {
+        if (b[g][2] < b[g][0] || b[g][3] < b[g][1]) continue;
+        for (int64_t ty = b[g][1] / TILE; ty <= b[g][3] / TILE; ++ty)
+            for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) counts[ty * tiles_x + tx + 1]++;
+    }
+    for (size_t i = 1; i < counts.size(); ++i) counts[i] += counts[i - 1];
+    auto offsets = torch::from_blob(counts.data(), {(int64_t)counts.size()}, torch::kInt64).clone();
+    auto ids = torch::empty({counts.back()}, torch::kInt64);
+    int64_t* out = ids.data_ptr<int64_t>();
+    std::vector<int64_t> fill(counts.begin(), counts.end() - 1);
+    for (int64_t g = 0; g < n; ++g) {
+        if (b[g][2] < b[g][0] || b[g][3] < b[g][1]) continue;
+        for (int64_t ty = b[g][1] / TILE; ty <= b[g][3] / TILE; ++ty)
+            for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) out[fill[ty * tiles_x + tx]++] = g;
+    }
+    return {offsets, ids};
+}
+
+template <typename scalar_t>
+struct Splat {
+    scalar_t alpha, raw, dx, dy;
+    bool skip;
+};
+
+// sigma beyond which alpha is surely below 1/255 (with a margin, so the exact test decides
+// near the threshold): skips most of exp() for the tile's Gaussians a pixel does not see.
+template <typename scalar_t>
+std::vector<scalar_t> sigma_cutoffs(const scalar_t* o, int64_t n) {
+    std::vector<scalar_t> cut(n);
+    for (int64_t g = 0; g < n; ++g) cut[g] = std::log((double)o[g] / ALPHA_MIN) + 1e-3;
+    return cut;
+}
+
+template <typename scalar_t>
+inline Splat<scalar_t> splat(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* cut,
+                             int64_t g, int64_t px, int64_t py) {
+    Splat<scalar_t> s;
+    s.dx = (scalar_t)px + (scalar_t)0.5 - m[2 * g];
+    s.dy = (scalar_t)py + (scalar_t)0.5 - m[2 * g + 1];
+    const scalar_t sigma =
+        (scalar_t)0.5 * (c[3 * g] * s.dx * s.dx + c[3 * g + 2] * s.dy * s.dy) + c[3 * g + 1] * s.dx * s.dy;
+    if (sigma < 0 || sigma > cut[g]) {
+        s.skip = true;
+        return s;
+    }
+    s.raw = o[g] * std::exp(-sigma);
+    s.alpha = std::min(s.raw, (scalar_t)ALPHA_MAX);
+    s.skip = s.alpha < (scalar_t)ALPHA_MIN;
+    return s;
+}
+
+template <typename scalar_t>
+int64_t forward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
+                     int64_t V, const int64_t* off, const int64_t* ids, int64_t tiles, int64_t width, int64_t height,
+                     scalar_t* img, scalar_t* tf, int32_t* used) {
+    const int64_t tiles_x = (width + TILE - 1) / TILE;
+    const auto cut = sigma_cutoffs(o, V);
+    int64_t n_pairs = 0;
+#pragma omp parallel for schedule(dynamic) reduction(+ : n_pairs)
+    for (int64_t t = 0; t < tiles; ++t) {
+        const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
+        for (int64_t py = y0; py < std::min(y0 + TILE, height); ++py) {
+            for (int64_t px = x0; px < std::min(x0 + TILE, width); ++px) {
+                const int64_t p = py * width + px;
+                scalar_t T = 1;
+                int32_t last = 0;
+                for (int64_t k = off[t]; k < off[t + 1]; ++k) {
+                    const int64_t g = ids[k];
+                    const auto s = splat(m, c, o, cut.data(), g, px, py);
+                    if (s.skip) continue;
+                    const scalar_t next_t = T * (1 - s.alpha);
+                    if (next_t <= (scalar_t)T_MIN) break;
+                    const scalar_t w = s.alpha * T;
+                    for (int64_t ch = 0; ch < C; ++ch) img[p * C + ch] += w * f[g * C + ch];
+                    T = next_t;
+                    last = (int32_t)(k - off[t] + 1);
+                    ++n_pairs;
+                }
+                tf[p] = T;
+                used[p] = last;
+            }
+        }
+    }
+    return n_pairs;
+}
+
+template <typename scalar_t>
+void backward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
+                   int64_t V, const int64_t* off, const int64_t* gids, int64_t tiles, int64_t width,
+                   int64_t height, const scalar_t* tf, const int32_t* used, const scalar_t* gi,
+                   const scalar_t* ga, scalar_t* all) {
+    const int64_t K = 8 + C;  // per Gaussian: mean2d (2), conic (3), opacity, features (C), |mean2d| (2)
+    const int64_t tiles_x = (width + TILE - 1) / TILE;
+    const auto cut = sigma_cutoffs(o, V);
+#pragma omp parallel for schedule(dynamic)
+    for (int64_t t = 0; t < tiles; ++t) {
+        scalar_t* buf = all + (int64_t)thread_id() * V * K;
+        const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
+        for (int64_t py = y0; py < std::min(y0 + TILE, height); ++py) {
+            for (int64_t px = x0; px < std::min(x0 + TILE, width); ++px) {
+                const int64_t p = py * width + px;
+                const scalar_t* G = gi + p * C;
+                scalar_t T = tf[p], behind = 0;
+                for (int64_t k = off[t] + used[p] - 1; k >= off[t]; --k) {
+                    const int64_t g = gids[k];
+                    const auto s = splat(m, c, o, cut.data(), g, px, py);
+                    if (s.skip) continue;
+                    T /= 1 - s.alpha;  // transmittance in front of g
+                    const scalar_t w = s.alpha * T;
+                    scalar_t dl_dw = ga[p];
+                    for (int64_t ch = 0; ch < C; ++ch) dl_dw += G[ch] * f[g * C + ch];
+                    scalar_t dl_dalpha = T * dl_dw - behind / (1 - s.alpha);
+                    behind += w * dl_dw;
+                    if (s.raw > (scalar_t)ALPHA_MAX) dl_dalpha = 0;  // clamped: flat
+                    const scalar_t dl_dsigma = -dl_dalpha * s.raw;
+                    const scalar_t dmx = -dl_dsigma * (c[3 * g] * s.dx + c[3 * g + 1] * s.dy);
+                    const scalar_t dmy = -dl_dsigma * (c[3 * g + 1] * s.dx + c[3 * g + 2] * s.dy);
+                    scalar_t* b = buf + g * K;
+                    b[0] += dmx;
+                    b[1] += dmy;
+                    b[2] += (scalar_t)0.5 * dl_dsigma * s.dx * s.dx;
+                    b[3] += dl_dsigma * s.dx * s.dy;
+                    b[4] += (scalar_t)0.5 * dl_dsigma * s.dy * s.dy;
+                    b[5] += dl_dalpha * s.raw / o[g];
+                    for (int64_t ch = 0; ch < C; ++ch) b[6 + ch] += w * G[ch];
+                    b[6 + C] += std::abs(dmx);
+                    b[7 + C] += std::abs(dmy);
+                }
+            }
+        }
+    }
+}
+
+}  // namespace
+
+// Returns image (H*W, C), final transmittance (H*W), per-pixel count of list entries
+// consumed (H*W, int32), tile offsets, tile ids and the number of pairs composited.
+std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
+                                   torch::Tensor feats, torch::Tensor boxes, int64_t width, int64_t height) {
+    auto bins = bin_tiles(boxes, width, height);
+    auto image = torch::zeros({height * width, feats.size(1)}, feats.options());
+    auto final_t = torch::ones({height * width}, feats.options());
+    auto consumed = torch::zeros({height * width}, torch::kInt32);
+    int64_t n_pairs = 0;
+    AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "eve3d_rasterize_forward", [&] {
+        n_pairs = forward_impl<scalar_t>(
+            means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), opac.data_ptr<scalar_t>(),
+            feats.data_ptr<scalar_t>(), feats.size(1), feats.size(0), bins[0].data_ptr<int64_t>(), bins[1].data_ptr<int64_t>(),
+            bins[0].size(0) - 1, width, height, image.data_ptr<scalar_t>(), final_t.data_ptr<scalar_t>(),
+            consumed.data_ptr<int32_t>());
+    });
+    return {image, final_t, consumed, bins[0], bins[1], torch::tensor(n_pairs)};
+}
+
+// Gradients for means2d (V, 2), conics (V, 3), opacities (V), features (V, C) and the
+// per-pixel absolute means2d gradients summed per Gaussian (V, 2).
+std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
+                                    torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids,
+                                    torch::Tensor final_t, torch::Tensor consumed, torch::Tensor grad_image,
+                                    torch::Tensor grad_alpha, int64_t width, int64_t height) {
+    const int64_t C = feats.size(1), V = feats.size(0);
+    auto buffers = torch::zeros({max_threads(), V, 8 + C}, feats.options());
+    AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "eve3d_rasterize_backward", [&] {
+        backward_impl<scalar_t>(
+            means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), opac.data_ptr<scalar_t>(),
+            feats.data_ptr<scalar_t>(), C, V, offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(),
+            offsets.size(0) - 1, width, height, final_t.data_ptr<scalar_t>(), consumed.data_ptr<int32_t>(),
+            grad_image.data_ptr<scalar_t>(), grad_alpha.data_ptr<scalar_t>(), buffers.data_ptr<scalar_t>());
+    });
+    auto total = buffers.sum(0);
+    return {total.slice(1, 0, 2), total.slice(1, 2, 5), total.select(1, 5), total.slice(1, 6, 6 + C),
+            total.slice(1, 6 + C, 8 + C)};
+}
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+    m.def("forward", &forward, "tile-based Gaussian compositing (forward)");
+    m.def("backward", &backward, "tile-based Gaussian compositing (backward)");
+}
