@@ -26,6 +26,7 @@ import torch
 
 from eve3d.render.projection import ALPHA_MAX, ALPHA_MIN, T_MIN, Projected, front_to_back
 
+
 def rasterize(proj: Projected, opacities: torch.Tensor, features: torch.Tensor, width: int, height: int,
               absgrad: torch.Tensor | None = None, max_pairs: int = 4_000_000
               ) -> tuple[torch.Tensor, torch.Tensor, int]:
