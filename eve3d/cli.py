@@ -86,8 +86,9 @@ def _cmd_bench(a: argparse.Namespace) -> None:
     if a.sizes:
         try:
             sizes = [tuple(int(v) for v in item.split("x")) for item in a.sizes.split(",")]
-            assert all(len(s) == 3 for s in sizes)
-        except (ValueError, AssertionError):
+        except ValueError:
+            sizes = []
+        if not sizes or any(len(s) != 3 for s in sizes):
             raise Eve3dError(f"--sizes {a.sizes!r}: expected GAUSSIANSxWIDTHxHEIGHT[,...], e.g. 5000x160x120")
     rows = bench.bench_rasterizer(sizes, backend=a.backend, repeats=a.repeats)
     print(bench.rasterizer_json(rows) if a.json else bench.format_rasterizer_table(rows))

@@ -31,9 +31,9 @@ def random_gaussians(n, dtype=torch.float64, seed=0, spread=0.5, scale=(0.03, 0.
 def brute_force(means, quats, scales, opacities, colors, cam, background):
     """Per-pixel loop: sort the Gaussians by depth and composite with gsplat's rules."""
     with torch.no_grad():
-        proj = project(means, quats, scales, opacities, cam)
         R = quat_to_rotmat(quats)
         mc = means @ cam.R.T + cam.t
+        proj = project(mc, R, scales, opacities, cam)
         out = np.zeros((cam.height, cam.width, 9))
         stops = 0
         for v in range(cam.height):
@@ -241,11 +241,11 @@ def test_cpu_and_gsplat_agree():
     cam_gpu = CameraTensors(cam.R.cuda(), cam.t.cuda(), cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
     ref = render(*g, cam, backend="cpu")
     gpu = render(*(x.cuda() for x in g), cam_gpu, backend="gsplat")
-    out = type("Cpu", (), {"rgb": gpu.rgb.cpu(), "depth": gpu.depth.cpu()})
-    mse = ((out.rgb - ref.rgb) ** 2).mean().item()
+    rgb, depth = gpu.rgb.cpu(), gpu.depth.cpu()
+    mse = ((rgb - ref.rgb) ** 2).mean().item()
     psnr = -10 * math.log10(max(mse, 1e-20))
     seen = ref.alpha > 0.5
-    rel = ((out.depth - ref.depth).abs() / ref.depth)[seen].median().item()
+    rel = ((depth - ref.depth).abs() / ref.depth)[seen].median().item()
     print(f"gsplat vs cpu: RGB PSNR {psnr:.1f} dB, median relative depth difference {rel:.2e}")
     assert psnr >= 40
     assert rel <= 1e-3

@@ -93,7 +93,7 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     if backend in ("cpu", "torch"):
         from eve3d.render import cpu, pairs
 
-        proj = project(means, quats, scales, opacities, cam, near, far)
+        proj = project(means_c, rotmats, scales, opacities, cam, near, far)
         means2d = proj.means2d
         if means2d.requires_grad:
             means2d.retain_grad()

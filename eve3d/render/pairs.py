@@ -107,27 +107,20 @@ def _list_pairs(boxes, y0, y1, width, columns: _Columns):
     order = ok.index_select(0, order)
     gid, alpha = gid.index_select(0, order), alpha.index_select(0, order)
     log_1ma = torch.log1p(-alpha.double())
-    log_t = _exclusive_segment_cumsum(log_1ma, _segment_ids(pix))
+    log_t = _exclusive_segment_cumsum(log_1ma, pix)
     ok = (log_t + log_1ma > math.log(T_MIN)).nonzero()[:, 0]
     trans = torch.exp(log_t.index_select(0, ok)).to(alpha.dtype)
     return gid.index_select(0, ok), pix.index_select(0, ok).long(), alpha.index_select(0, ok) * trans, trans
 
 
-def _segment_ids(pix: torch.Tensor) -> torch.Tensor:
-    """For a pixel-sorted pair list, the running index of each pair's pixel segment."""
-    change = torch.ones_like(pix, dtype=torch.long)
-    if pix.numel() > 1:
-        change[1:] = pix[1:] != pix[:-1]
-    return torch.cumsum(change, 0) - 1
-
-
-def _exclusive_segment_cumsum(x: torch.Tensor, segment: torch.Tensor) -> torch.Tensor:
-    """Per segment, the sum of the elements before each one (segments are contiguous runs)."""
+def _exclusive_segment_cumsum(x: torch.Tensor, pix: torch.Tensor) -> torch.Tensor:
+    """For a pixel-sorted pair list, the sum of ``x`` over the earlier pairs of the same pixel."""
     excl = torch.cumsum(x, 0) - x
     if x.numel() == 0:
         return excl
-    is_start = torch.ones_like(segment, dtype=torch.bool)
-    is_start[1:] = segment[1:] != segment[:-1]
+    is_start = torch.ones_like(pix, dtype=torch.bool)
+    is_start[1:] = pix[1:] != pix[:-1]
+    segment = torch.cumsum(is_start, 0) - 1
     return excl - excl[is_start].index_select(0, segment)
 
 
@@ -151,7 +144,7 @@ class _Composite(torch.autograd.Function):
         dl_dw = (g_img * feats.index_select(0, gid)).sum(1) + grad_alpha.index_select(0, pix)
         h = (weight * dl_dw).double()
         behind = torch.zeros(grad_image.shape[0], dtype=h.dtype, device=h.device).index_add_(0, pix, h)
-        behind = behind.index_select(0, pix) - _exclusive_segment_cumsum(h, _segment_ids(pix)) - h
+        behind = behind.index_select(0, pix) - _exclusive_segment_cumsum(h, pix) - h
         columns = _Columns(means2d, conics, opac)
         alpha, raw, dx, dy = columns.alpha(gid, pix % ctx.width, torch.div(pix, ctx.width, rounding_mode="floor"))
         dl_dalpha = trans * dl_dw - (behind / (1 - alpha.double())).to(alpha.dtype)

@@ -92,17 +92,13 @@ class Projected:
     conics: torch.Tensor  # (N, 3) inverse 2D covariance (a, b, c): σ = ½(a dx² + c dy²) + b dx dy
     depths: torch.Tensor  # (N,) camera z
     radii: torch.Tensor  # (N, 2) int32 half extents of the bounding box in pixels, 0 = culled
-    means_c: torch.Tensor  # (N, 3) camera-space centres
-    rotmats: torch.Tensor  # (N, 3, 3)
 
 
-def project(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+def project(means_c: torch.Tensor, rotmats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
             cam: CameraTensors, near: float = 0.01, far: float = 1e10) -> Projected:
-    """Project Gaussians into ``cam`` (differentiable in every input)."""
-    R, t = cam.R, cam.t
-    means_c = means @ R.T + t
-    rotmats = quat_to_rotmat(quats)
-    M = R @ rotmats * scales[:, None, :]  # camera-space R_g S
+    """Project Gaussians, given by camera-space centres (N, 3) and world rotation matrices
+    (N, 3, 3), into ``cam`` (differentiable in every input)."""
+    M = cam.R @ rotmats * scales[:, None, :]  # camera-space R_g S
     cov_c = M @ M.transpose(1, 2)
     x, y, z = means_c.unbind(-1)
     z_safe = torch.where(z > near, z, torch.full_like(z, near))
@@ -132,7 +128,7 @@ def project(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opac
         keep = ((z >= near) & (z <= far) & (det > 0) & (opacities >= ALPHA_MIN) & ((rx > 0) | (ry > 0))
                 & (mx + rx > 0) & (mx - rx < cam.width) & (my + ry > 0) & (my - ry < cam.height))
         radii = torch.stack([rx, ry], dim=-1).to(torch.int32) * keep[:, None]
-    return Projected(means2d, conics, z, radii, means_c, rotmats)
+    return Projected(means2d, conics, z, radii)
 
 
 def front_to_back(proj: Projected, width: int, height: int) -> tuple[torch.Tensor, torch.Tensor]:
