@@ -5,6 +5,7 @@ configfile: "config/config.yaml"
 include: "workflow/rules/common.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/depth.smk"
+include: "workflow/rules/train.smk"
 include: "workflow/rules/mesh.smk"
 include: "workflow/rules/evaluate.smk"
 

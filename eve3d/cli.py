@@ -37,6 +37,39 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
 
 
+def _cmd_pretrain(a: argparse.Namespace) -> None:
+    from eve3d.config import stage_settings, training_config
+    from eve3d.io import load_scene
+    from eve3d.pretrain import PretrainSettings, pretrain
+
+    settings = stage_settings(PretrainSettings, "pretrain", training_config(a.config, a.set))
+    metrics = pretrain(load_scene(a.scene), Path(a.out), settings)
+    held = metrics["held_out"]
+    if held:
+        print(f"held-out views ({held['views']}): PSNR {held['psnr']:.2f} dB, SSIM {held['ssim']:.4f}")
+    print(f"wrote {a.out}/point_cloud.ply ({metrics['gaussians']} Gaussians)")
+
+
+def _cmd_joint(a: argparse.Namespace) -> None:
+    from eve3d.config import stage_settings, training_config
+    from eve3d.io import load_scene
+    from eve3d.joint import JointSettings, train_joint
+
+    settings = stage_settings(JointSettings, "joint", training_config(a.config, a.set), method=a.method)
+    metrics = train_joint(load_scene(a.scene), Path(a.out), settings)
+    print(f"training views: PSNR {metrics['train']['psnr']:.2f} dB; wrote {a.out}/point_cloud.ply "
+          f"({metrics['gaussians']} Gaussians) and {a.out}/depth/")
+
+
+def _add_training_options(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--scene", required=True, help="posed dataset folder")
+    s.add_argument("--out", required=True, help="output folder (holds the checkpoint a killed run resumes from)")
+    s.add_argument("--config", help="workflow config file (its preset, train/pretrain/joint sections), or an "
+                                    "inline JSON mapping; default: the cpu preset")
+    s.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one setting, e.g. --set pretrain.iterations=500 (repeatable)")
+
+
 def _cmd_mesh(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
     from eve3d.mesh import MeshSettings, fuse, write_mesh
@@ -94,38 +127,54 @@ def _cmd_bench(a: argparse.Namespace) -> None:
     print(bench.rasterizer_json(rows) if a.json else bench.format_rasterizer_table(rows))
 
 
-def format_table(rows: list[dict]) -> str:
+def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:
     """A plain-text table of metric rows (missing values as '-')."""
     def cell(v):
         return f"{v:.4g}" if isinstance(v, float) else ("-" if v is None else str(v))
 
-    cols = [c for c in SUMMARY_COLUMNS if any(c in r for r in rows)]
+    cols = [c for c in columns if any(c in r for r in rows)]
     table = [cols] + [[cell(r.get(c)) for c in cols] for r in rows]
     widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
     lines = ["  ".join(v.ljust(w) for v, w in zip(row, widths)) for row in table]
     return "\n".join([lines[0], "  ".join("-" * w for w in widths)] + lines[1:])
 
 
-def _cmd_summary(a: argparse.Namespace) -> None:
-    from eve3d.fileio import atomic_path
+VIEW_COLUMNS = ("scene", "stage", "views", "psnr", "ssim")
 
-    rows = []
+
+def _cmd_summary(a: argparse.Namespace) -> None:
+    rows, view_rows = [], []
     for path in map(Path, a.metrics):
         try:
             m = json.loads(path.read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise Eve3dError(f"{path}: cannot read metrics ({e})") from None
+        if "held_out" in m:  # a training stage's novel-view metrics (pretrain/metrics.json)
+            view_rows.append({"scene": path.parent.parent.name, "stage": path.parent.name, **m["held_out"]})
+            continue
         # results/{scene}/{method}/metrics.json names the row when the file does not.
         m.setdefault("scene", path.parent.parent.name)
         m.setdefault("method", path.parent.name)
         rows.append(m)
     rows.sort(key=lambda r: (r["scene"], r["method"]))
-    with atomic_path(Path(a.out)) as tmp:
+    out = Path(a.out)
+    _write_csv(out, SUMMARY_COLUMNS, rows)
+    print(format_table(rows, SUMMARY_COLUMNS))
+    if view_rows:
+        view_rows.sort(key=lambda r: (r["scene"], r["stage"]))
+        _write_csv(out.with_name(f"{out.stem}_views.csv"), VIEW_COLUMNS, view_rows)
+        print("\nheld-out views of the training stages (at the training resolution)")
+        print(format_table(view_rows, VIEW_COLUMNS))
+
+
+def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
+    from eve3d.fileio import atomic_path
+
+    with atomic_path(path) as tmp:
         with open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore")
+            writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
             writer.writeheader()
             writer.writerows(rows)
-    print(format_table(rows))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -164,6 +213,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--gt-mesh", help="mesh for the oracle (default: the scene's own GT mesh)")
     s.add_argument("--no-preview", action="store_true")
     s.set_defaults(func=_cmd_stereo_depth)
+
+    s = sub.add_parser("pretrain", help="short photometric 3DGS fit (Mini-Splatting style) → point_cloud.ply")
+    _add_training_options(s)
+    s.set_defaults(func=_cmd_pretrain)
+
+    s = sub.add_parser("joint", help="train a method's Gaussians and render its depth for meshing")
+    s.add_argument("--method", required=True, choices=["3dgs", "pgsr"])
+    _add_training_options(s)
+    s.set_defaults(func=_cmd_joint)
 
     s = sub.add_parser("mesh", help="TSDF-fuse per-view depth maps into mesh.ply")
     s.add_argument("--scene", required=True)

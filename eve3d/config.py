@@ -69,3 +69,47 @@ def load_config(path: str | Path) -> dict:
     except (OSError, yaml.YAMLError) as e:
         raise Eve3dError(f"{path}: cannot read configuration ({e})") from None
     return resolve_config(user, str(path))
+
+
+TRAINING_SECTIONS = ("train", "pretrain", "joint")
+
+
+def training_config(spec: str | None = None, overrides: list[str] = ()) -> dict:
+    """The ``train``, ``pretrain`` and ``joint`` sections for a training CLI: the preset
+    (``cpu`` unless the config names one), then ``spec`` (a workflow config file, or an
+    inline JSON/YAML mapping as the workflow passes it), then ``SECTION.KEY=VALUE``
+    overrides (values parsed as YAML)."""
+    user: dict = {}
+    if spec:
+        text = spec if spec.lstrip().startswith("{") else None
+        source = "--config" if text is not None else spec
+        try:
+            user = yaml.safe_load(text if text is not None else Path(spec).read_text()) or {}
+        except (OSError, yaml.YAMLError) as e:
+            raise Eve3dError(f"{source}: cannot read configuration ({e})") from None
+        if not isinstance(user, dict):
+            raise Eve3dError(f"{source}: expected a mapping of configuration keys")
+    preset_name = user.get("preset", "cpu")
+    preset_path = PRESETS / f"{preset_name}.yaml"
+    if not preset_path.is_file():
+        raise Eve3dError(f"preset {preset_name!r} not found in {PRESETS}")
+    config = deep_merge(yaml.safe_load(preset_path.read_text()) or {}, user)
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        path = key.split(".")
+        if not sep or path[0] not in TRAINING_SECTIONS or len(path) < 2:
+            raise Eve3dError(f"--set {item!r}: expected SECTION.KEY=VALUE with SECTION one of {', '.join(TRAINING_SECTIONS)}")
+        node = config.setdefault(path[0], {})
+        for part in path[1:-1]:
+            node = node.setdefault(part, {})
+        node[path[-1]] = yaml.safe_load(value)
+    return {k: config.get(k) or {} for k in TRAINING_SECTIONS}
+
+
+def stage_settings(cls, section: str, config: dict, **fixed):
+    """Settings of a training stage: ``train`` merged under ``section``, plus ``fixed``."""
+    from eve3d.training import settings_from_dict
+
+    values = deep_merge(config.get("train") or {}, config.get(section) or {})
+    values.update(fixed)
+    return settings_from_dict(cls, values, where=f"{section} (train + {section} sections)")

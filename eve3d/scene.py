@@ -5,7 +5,7 @@ Conventions (DESIGN §5): OpenCV/COLMAP cameras (x right, y down, z forward), wo
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -99,6 +99,13 @@ class Camera:
     def backproject(self, depth: np.ndarray) -> np.ndarray:
         """Depth map (H,W) of camera z → world points (H,W,3)."""
         return self.center + self.pixel_rays() * depth[..., None]
+
+    def scaled(self, factor: float) -> Camera:
+        """The same view at image size × factor (training at a reduced resolution); the
+        pixel-centre convention is preserved because K scales about the image corner."""
+        K = self.K.copy()
+        K[:2] *= factor
+        return replace(self, K=K, width=round(self.width * factor), height=round(self.height * factor))
 
 
 @dataclass

@@ -1,11 +1,12 @@
 # Configuration and input functions shared by every rule.
+import json
 import os
 import shlex
 import sys
 from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
-from eve3d.config import resolve_config
+from eve3d.config import resolve_config, stage_settings
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
 
@@ -18,7 +19,23 @@ config.update(_resolved)
 
 RESULTS = config["results"]
 SCENES = list(config["scenes"])
-METHODS = config["methods"]
+TRAINED = ("3dgs", "pgsr")  # methods the joint stage trains (eve3d.joint.METHODS)
+
+
+def scene_methods(scene):
+    return config["scenes"][scene].get("methods", config["methods"])
+
+
+METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
+# The training sections are checked now, so that a typo stops the workflow before any job runs.
+try:
+    from eve3d.joint import JointSettings
+    from eve3d.pretrain import PretrainSettings
+
+    stage_settings(PretrainSettings, "pretrain", config)
+    stage_settings(JointSettings, "joint", config)
+except Eve3dError as e:
+    raise WorkflowError(f"config: {e}")
 # Jobs run `python -m eve3d`: the interpreter that runs Snakemake (a venv) comes first on
 # PATH, a conda env (--use-conda) prepends its own; PYTHONPATH finds this checkout's package.
 os.environ["PATH"] = os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", "")
@@ -71,8 +88,25 @@ def gt_input(wildcards):
 
 
 def depth_source(wildcards):
-    """Per-view depth maps that a TSDF method fuses."""
-    return {"oracle": f"{RESULTS}/{wildcards.scene}/priors/oracle"}[wildcards.method]
+    """Per-view depth maps that a method's mesh fuses."""
+    if wildcards.method == "oracle":
+        return f"{RESULTS}/{wildcards.scene}/priors/oracle"
+    return f"{RESULTS}/{wildcards.scene}/{wildcards.method}/depth"
+
+
+def training_config():
+    """What a training job needs of the config, inline (a change reruns the job)."""
+    keys = ("preset", "train", "pretrain", "joint")
+    return shlex.quote(json.dumps({k: config[k] for k in keys}, sort_keys=True))
+
+
+def metrics_files():
+    return [f"{RESULTS}/{s}/{m}/metrics.json" for s in SCENES for m in scene_methods(s)]
+
+
+def pretrain_metrics():
+    """Held-out view metrics of the pretrain stage, for scenes where a method trains."""
+    return [f"{RESULTS}/{s}/pretrain/metrics.json" for s in SCENES if set(scene_methods(s)) & set(TRAINED)]
 
 
 def mesh_args(wildcards):

@@ -19,10 +19,11 @@ rule evaluate:
 
 rule summary:
     input:
-        expand(f"{RESULTS}/{{scene}}/{{method}}/metrics.json", scene=SCENES, method=METHODS),
+        metrics=metrics_files(),
+        novel_views=pretrain_metrics(),
     output:
         f"{RESULTS}/summary.csv",
     conda:
         CONDA_ENV
     shell:
-        "{EVE3D} summary {input} --out {output}"
+        "{EVE3D} summary {input.metrics} {input.novel_views} --out {output}"

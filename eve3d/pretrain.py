@@ -1,0 +1,118 @@
+"""Pretrain stage (``eve3d pretrain``): a short photometric 3DGS fit in Mini-Splatting's
+spirit, whose only job is to render the virtual right views of the stereo stage.
+
+Schedule: 3DGS with aggressive densification (a low gradient threshold, frequent
+refinement); at ``reinit_at`` the Gaussians are replaced by points back-projected from the
+rendered depth of every training view (Mini-Splatting's depth re-initialisation: an even,
+surface-bound layout instead of the clumps densification grows); at ``simplify_at`` only
+the Gaussians that carry the most blending weight over the training views are kept
+(Mini-Splatting's importance-based simplification). Writes ``point_cloud.ply`` (standard
+3DGS PLY), ``metrics.json`` (PSNR/SSIM of the held-out views) and PNG previews.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from eve3d.densify import remove
+from eve3d.fileio import atomic_path
+from eve3d.gaussians import GaussianModel
+from eve3d.losses import rgb_loss
+from eve3d.render import render
+from eve3d.scene import Scene
+from eve3d.training import Trainer, TrainSettings, initial_points
+
+
+@dataclass
+class PretrainSettings(TrainSettings):
+    iterations: int = 7000
+    holdout: int = 8
+    reinit_at: tuple[int, ...] = (2000,)
+    """Steps at which the Gaussians are re-initialised from rendered depth."""
+    reinit_points: int = 0
+    """Points sampled at a re-initialisation; 0 = as many as there are Gaussians then."""
+    simplify_at: tuple[int, ...] = (5000,)
+    simplify_keep: float = 0.6
+    """Fraction of Gaussians (highest blending weight first) a simplification keeps."""
+    init_random_points: int = 100_000
+    """Random initial points when the scene has no sparse points."""
+
+
+@torch.no_grad()
+def depth_points(trainer: Trainer, count: int, min_alpha: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` world points (and their photo colours) back-projected from the expected
+    depth of the training views, drawn uniformly over the well-covered pixels."""
+    pts, cols = [], []
+    for i in trainer.train_ids:
+        view = trainer.views[i]
+        out = trainer.render(view)
+        ok = (out.alpha > min_alpha) & (out.depth_expected > 0)
+        world = view.camera.backproject(out.depth_expected.cpu().numpy().astype(np.float64))
+        pts.append(world[ok.cpu().numpy()])
+        cols.append(view.image.cpu().numpy()[ok.cpu().numpy()])
+    pts, cols = np.concatenate(pts), np.concatenate(cols)
+    pick = torch.randperm(len(pts), generator=trainer.generator)[:count].numpy()
+    return pts[pick], cols[pick]
+
+
+@torch.enable_grad()
+def blend_weights(trainer: Trainer) -> torch.Tensor:
+    """(N,) Σ over training views and pixels of each Gaussian's blending weight w = α·T:
+    the gradient of the composited constant channel 1 with respect to that channel."""
+    m = trainer.model
+    total = torch.zeros(len(m), device=trainer.device)
+    for i in trainer.train_ids:
+        ones = torch.ones(len(m), 1, device=trainer.device, requires_grad=True)
+        cam = trainer.views[i].cam
+        out = render(m.params["means"].detach(), m.params["quats"].detach(), m.scales.detach(),
+                     m.opacities.detach(), torch.zeros(len(m), 3, device=trainer.device), cam, extras=ones,
+                     backend=trainer.s.backend)
+        out.extras.sum().backward()
+        total += ones.grad[:, 0]
+    return total
+
+
+def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
+    """Run the stage; returns the held-out metrics (also written to ``metrics.json``)."""
+    s = settings
+    out_dir = Path(out_dir)
+    trainer = Trainer(scene, s, out_dir, "pretrain")
+    rng = np.random.default_rng(s.seed)
+    points, colors = initial_points(scene, s.init_random_points, rng)
+    trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree))
+
+    def loss_terms(step, view, out):
+        return {"rgb": rgb_loss(out.rgb, view.image, s.ssim_weight)}
+
+    def events(step: int) -> None:
+        if step in s.reinit_at:
+            count = s.reinit_points or len(trainer.model)
+            pts, cols = depth_points(trainer, count)
+            trainer.set_model(GaussianModel.from_points(pts, cols, s.sh_degree))
+            print(f"\npretrain: step {step}: re-initialised {len(pts)} Gaussians from rendered depth", file=sys.stderr)
+        if step in s.simplify_at:
+            weight = blend_weights(trainer)
+            keep = max(1, int(round(s.simplify_keep * len(weight))))
+            order = torch.argsort(weight, descending=True)
+            drop = torch.ones(len(weight), dtype=torch.bool, device=weight.device)
+            drop[order[:keep]] = False
+            drop |= weight <= 0
+            remove(trainer.model.params, trainer.optimizers, drop)
+            trainer.densify_state = {k: v[~drop] for k, v in trainer.densify_state.items()}
+            print(f"\npretrain: step {step}: simplified to {len(trainer.model)} Gaussians", file=sys.stderr)
+
+    trainer.run(loss_terms, events)
+    trainer.model.save_ply(out_dir / "point_cloud.ply")
+    metrics = {"held_out": trainer.evaluate(trainer.test_ids), "train": trainer.evaluate(trainer.train_ids),
+               "gaussians": len(trainer.model), "iterations": s.iterations, "resolution": s.resolution,
+               "settings": asdict(s)}
+    with atomic_path(out_dir / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(metrics, indent=2, default=str))
+    trainer.write_previews(out_dir / "previews", depth="depth_expected")
+    trainer.finish()
+    return metrics

@@ -1,0 +1,233 @@
+"""Gaussian training: densification rules, the multi-view geometry of the PGSR losses,
+checkpoint/resume, the NaN stop, and that training actually fits a tiny scene."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from eve3d.densify import Densifier, reset_opacity
+from eve3d.gaussians import GaussianModel
+from eve3d.joint import JointSettings, train_joint
+from eve3d.losses import depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss
+from eve3d.render.projection import CameraTensors
+from eve3d.scene import Camera
+from eve3d.synth import generate
+from eve3d.training import NonFiniteLoss, Trainer, TrainSettings, settings_from_dict
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    from eve3d.io import load_scene
+
+    return load_scene(generate("object", tmp_path_factory.mktemp("tiny") / "object", views=8, width=64, height=48))
+
+
+@pytest.fixture
+def one_thread():
+    """Single-threaded rasterisation: gradient sums in a fixed order, bit-reproducible."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def constructed_model():
+    """Six Gaussians whose fate under the default rules (scene scale 1) is known:
+    0 small, high gradient → cloned; 1 large, high absolute gradient → split;
+    2 large, high gradient but low absolute gradient → kept; 3 transparent → pruned;
+    4 small, low gradient → kept; 5 small, high gradient but transparent → cloned, both pruned."""
+    means = torch.arange(18, dtype=torch.float32).reshape(6, 3)
+    scales = torch.tensor([0.005, 0.05, 0.05, 0.005, 0.005, 0.005])[:, None].repeat(1, 3)
+    opac = torch.tensor([0.5, 0.5, 0.5, 0.001, 0.5, 0.002])
+    params = {"means": means, "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(6, 1), "log_scales": scales.log(),
+              "logit_opacities": torch.log(opac / (1 - opac)), "sh0": torch.rand(6, 1, 3), "shN": torch.zeros(6, 3, 3)}
+    params = {k: torch.nn.Parameter(v) for k, v in params.items()}
+    optimizers = {k: torch.optim.Adam([p], lr=0.01) for k, p in params.items()}
+    for p in params.values():  # one step, so that every parameter has Adam moments
+        p.grad = torch.ones_like(p)
+    for o in optimizers.values():
+        o.step()
+    return params, optimizers
+
+
+def test_densify_and_prune_follow_the_rules():
+    params, optimizers = constructed_model()
+    d = Densifier(grow_grad2d=0.0002, grow_absgrad2d=0.0008, grow_scale3d=0.01, prune_opa=0.005)
+    state = d.init_state(6, n_views=4)
+    state["count"][:] = 2
+    state["grad2d"][:] = 2 * torch.tensor([0.001, 0.0001, 0.001, 0.0001, 0.0001, 0.001])
+    state["absgrad2d"][:] = 2 * torch.tensor([0.001, 0.002, 0.0005, 0.0001, 0.0001, 0.001])
+    before = {k: v.detach().clone() for k, v in params.items()}
+    changed = d.refine(params, optimizers, state, step=600, scene_scale=1.0, generator=torch.Generator().manual_seed(0))
+    assert changed == {"clone": 2, "split": 1, "prune": 3}  # pruned: 3, 5 and 5's clone
+    # 6 + 2 clones + 1 (split: one becomes two) − 3 pruned
+    assert len(params["means"]) == 6
+    means = params["means"].detach()
+    # survivors in order: 0, 2, 4, clone of 0, the two halves of 1
+    assert torch.equal(means[:3], before["means"][[0, 2, 4]])
+    assert torch.equal(means[3], before["means"][0])
+    halves = params["log_scales"].detach()[4:]
+    assert torch.allclose(halves, before["log_scales"][1] - math.log(1.6))
+    assert ((means[4:] - before["means"][1]).norm(dim=-1) < 0.05 * 5).all()
+    assert not torch.equal(means[4], means[5])
+    for name, p in params.items():
+        st = optimizers[name].state[p]
+        assert st["exp_avg"].shape == p.shape  # moments follow the rows
+        assert torch.count_nonzero(st["exp_avg"][:3]) == st["exp_avg"][:3].numel()  # survivors keep theirs
+        assert torch.count_nonzero(st["exp_avg"][3:]) == 0  # new rows start at zero
+    assert len(state["grad2d"]) == 6 and float(state["count"].sum()) == 0
+
+
+def test_prune_by_views_and_size_and_reset_opacity():
+    params, optimizers = constructed_model()
+    d = Densifier(prune_min_views=2, reset_every=1000, prune_scale3d=0.03)
+    state = d.init_state(6, n_views=4)
+    state["seen"][:, 0] = True
+    state["seen"][[0, 1], 1] = True  # only 0 and 1 were seen by two views
+    state["birth"][0] = 100  # too young to be judged
+    mask = d.prune_mask(params, state, step=105, scene_scale=1.0)
+    assert mask.tolist() == [False, False, True, True, True, True]
+    mask = d.prune_mask(params, state, step=1500, scene_scale=1.0)  # after a reset: size rule on
+    assert mask.tolist() == [False, True, True, True, True, True]
+    low = params["logit_opacities"].detach()[3].clone()
+    reset_opacity(params, optimizers, 0.01)
+    assert torch.sigmoid(params["logit_opacities"].detach()).max() <= 0.01 + 1e-6
+    assert params["logit_opacities"].detach()[3] == low  # already below: untouched
+
+
+def _plane_views():
+    """A textured plane z = 3 seen by two cameras; exact depth, normal, distance, images."""
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    ry = np.radians(8)
+    R2 = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
+    cams = [Camera("a.png", 64, 48, K, np.eye(3), np.zeros(3)),
+            Camera("b.png", 64, 48, K, R2, np.array([-0.4, 0.05, 0.0]))]
+    out = []
+    for cam in cams:
+        rays = cam.pixel_rays()
+        c = cam.center
+        s = (3.0 - c[2]) / rays[..., 2]
+        p = c + rays * s[..., None]
+        tex = 0.5 + 0.25 * np.sin(3 * p[..., 0]) * np.cos(2 * p[..., 1]) + 0.2 * np.sin(5 * p[..., 0] + 1.3 * p[..., 1])
+        depth = (p @ cam.R.T + cam.t)[..., 2]
+        out.append((CameraTensors.from_camera(cam, torch.float64), torch.tensor(depth),
+                    torch.tensor(np.repeat(tex[..., None], 3, -1))))
+    normal_a = torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64).expand(48, 64, 3)
+    return out, normal_a, torch.full((48, 64), 3.0, dtype=torch.float64)
+
+
+def test_multiview_losses_vanish_on_the_true_plane_and_not_off_it():
+    (a, b), normal, distance = _plane_views()
+    cam_a, depth_a, img_a = a
+    cam_b, depth_b, img_b = b
+    assert torch.allclose(depth_to_normal(depth_a, cam_a)[1:-1, 1:-1], normal[1:-1, 1:-1], atol=1e-9)
+    phi, defined = forward_backward_error(depth_a, depth_b, cam_a, cam_b)
+    assert defined.float().mean() > 0.5 and phi[defined].max() < 0.01  # bilinear depth lookup: z is not affine in (u, v)
+    loss, valid = geometric_loss(phi, defined)
+    assert float(loss) < 0.01 and torch.equal(valid, defined)
+    # 8 px of disparity here: a 5% depth error leaves the loop open by about 0.4 px, 20% by 1.6 px
+    phi_off, _ = forward_backward_error(depth_a * 1.05, depth_b, cam_a, cam_b)
+    assert 0.3 < phi_off[defined].median() < 0.5
+    phi_off, _ = forward_backward_error(depth_a * 1.2, depth_b, cam_a, cam_b)
+    assert phi_off[defined].median() > 1.0
+    pixels = torch.stack(torch.meshgrid(torch.arange(10, 38, 3), torch.arange(10, 54, 3), indexing="ij"), -1).reshape(-1, 2)
+    ncc, ok = ncc_loss(img_a, img_b, cam_a, cam_b, normal, distance, pixels)
+    # exact up to the bilinear lookup in the neighbour (low-contrast patches feel it most)
+    assert ok.float().mean() > 0.5 and ncc[ok].median() < 1e-3 and ncc[ok].max() < 0.02
+    ncc_off, ok_off = ncc_loss(img_a, img_b, cam_a, cam_b, normal, distance * 1.3, pixels)
+    assert ncc_off[ok & ok_off].mean() > 0.1
+
+
+def test_ncc_gradient_reaches_the_plane():
+    (a, b), normal, distance = _plane_views()
+    d = (distance * 1.1).requires_grad_()
+    pixels = torch.tensor([[24, 32], [20, 20], [30, 40]])
+    ncc, ok = ncc_loss(a[2], b[2], a[0], b[0], normal, d, pixels)
+    ncc[ok].sum().backward()
+    assert d.grad[24, 32] != 0 and torch.count_nonzero(d.grad) == 3
+
+
+def test_unknown_or_mistyped_setting_is_named():
+    with pytest.raises(Exception, match="joint.densify: unknown key.*grow_grad"):
+        settings_from_dict(JointSettings, {"densify": {"grow_grad": 1}}, "joint")
+    with pytest.raises(Exception, match="iterations: 'many'"):
+        settings_from_dict(JointSettings, {"iterations": "many"}, "joint")
+
+
+def test_200_iterations_raise_psnr_by_5_db(tiny_scene, tmp_path):
+    s = TrainSettings(iterations=200, sh_degree=0, checkpoint_every=0,
+                      densify=Densifier(refine_start=50, refine_every=50, reset_every=0))
+    trainer = Trainer(tiny_scene, s, tmp_path, "fit")
+    trainer.set_model(GaussianModel.from_points(tiny_scene.points, tiny_scene.point_colors / 255, 0))
+    before = trainer.evaluate(trainer.train_ids)["psnr"]
+    trainer.run(lambda step, view, out: {"rgb": rgb_loss(out.rgb, view.image)})
+    after = trainer.evaluate(trainer.train_ids)["psnr"]
+    print(f"PSNR {before:.2f} → {after:.2f} dB")
+    assert after - before >= 5.0
+
+
+def _joint_settings(**kw) -> JointSettings:
+    base = dict(method="pgsr", iterations=60, sh_degree=1, sh_degree_interval=20, checkpoint_every=25,
+                dn_from=20, mv_from=20, ncc_pixels=256, previews=1,
+                densify=Densifier(refine_start=10, refine_every=10, refine_stop=50, reset_every=0))
+    base.update(kw)
+    return JointSettings(**base)
+
+
+def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeypatch, one_thread):
+    train_joint(tiny_scene, tmp_path / "straight", _joint_settings())
+    straight = GaussianModel.load_ply(tmp_path / "straight/point_cloud.ply")
+    assert not (tmp_path / "straight/checkpoint.pt").exists()  # removed once the outputs exist
+
+    save = Trainer.save_checkpoint
+
+    def save_then_die(self):
+        save(self)
+        if self.step == 50:
+            raise KeyboardInterrupt  # killed right after the second checkpoint
+
+    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        train_joint(tiny_scene, tmp_path / "killed", _joint_settings())
+    monkeypatch.setattr(Trainer, "save_checkpoint", save)
+    assert (tmp_path / "killed/checkpoint.pt").exists() and not (tmp_path / "killed/point_cloud.ply").exists()
+    train_joint(tiny_scene, tmp_path / "killed", _joint_settings())
+    resumed = GaussianModel.load_ply(tmp_path / "killed/point_cloud.ply")
+    assert len(resumed) == len(straight)
+    for name, value in straight.params.items():
+        assert torch.allclose(resumed.params[name], value, atol=1e-5), name
+    assert (tmp_path / "killed/depth/000.npz").exists() and (tmp_path / "killed/previews/000.rgb.png").exists()
+
+
+def test_changed_settings_do_not_resume_a_stale_checkpoint(tiny_scene, tmp_path, capsys):
+    trainer = Trainer(tiny_scene, _joint_settings(), tmp_path, "a")
+    trainer.set_model(GaussianModel.from_points(tiny_scene.points, None, 1))
+    trainer.save_checkpoint()
+    other = Trainer(tiny_scene, _joint_settings(iterations=61), tmp_path, "b")
+    other.set_model(GaussianModel.from_points(tiny_scene.points, None, 1))
+    assert not other.resume()
+    assert "other settings" in capsys.readouterr().err
+
+
+def test_nan_stops_with_iteration_and_term_and_keeps_checkpoint(tiny_scene, tmp_path):
+    s = _joint_settings(dn_weight=float("nan"), dn_from=30, checkpoint_every=10)
+    with pytest.raises(NonFiniteLoss, match=r"loss term depth_normal is not finite at iteration 30.*step 30"):
+        train_joint(tiny_scene, tmp_path, s)
+    ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    assert ckpt["step"] == 30
+    assert all(torch.isfinite(v).all() for v in ckpt["params"].values())
+
+
+def test_growth_budget_keeps_the_strongest_candidates():
+    params, optimizers = constructed_model()
+    d = Densifier(max_gaussians=7, prune_opa=0.0)  # room for one more Gaussian
+    state = d.init_state(6, n_views=4)
+    state["count"][:] = 1
+    # candidates, by gradient over threshold: clone 5 (15×), clone 0 (5×), split 1 (2.5×)
+    state["grad2d"][:] = torch.tensor([0.001, 0.0001, 0.001, 0.0001, 0.0001, 0.003])
+    state["absgrad2d"][:] = torch.tensor([0.001, 0.002, 0.0005, 0.0001, 0.0001, 0.001])
+    means5 = params["means"].detach()[5].clone()
+    changed = d.refine(params, optimizers, state, step=600, scene_scale=1.0)
+    assert changed == {"clone": 1, "split": 0, "prune": 0} and len(params["means"]) == 7
+    assert torch.equal(params["means"].detach()[6], means5)

@@ -1,0 +1,40 @@
+# Gaussian training: the pretrain stage and the joint stage of each trained method. Each job
+# takes every core it is given (OpenMP in the CPU rasteriser); on a GPU the cores matter less.
+
+
+rule pretrain:
+    input:
+        posed_dataset,
+    output:
+        model=f"{RESULTS}/{{scene}}/pretrain/point_cloud.ply",
+        metrics=f"{RESULTS}/{{scene}}/pretrain/metrics.json",
+    params:
+        config=lambda wc: training_config(),
+    log:
+        f"{RESULTS}/logs/{{scene}}/pretrain.log",
+    threads: workflow.cores
+    conda:
+        CONDA_ENV
+    shell:
+        "OMP_NUM_THREADS={threads} {EVE3D} pretrain --scene {input} --out {RESULTS}/{wildcards.scene}/pretrain --config {params.config}"
+        " > {log} 2>&1"
+
+
+rule joint:
+    input:
+        posed_dataset,
+    output:
+        model=f"{RESULTS}/{{scene}}/{{method}}/point_cloud.ply",
+        depth=directory(f"{RESULTS}/{{scene}}/{{method}}/depth"),
+    wildcard_constraints:
+        method="|".join(TRAINED),
+    params:
+        config=lambda wc: training_config(),
+    log:
+        f"{RESULTS}/logs/{{scene}}/joint_{{method}}.log",
+    threads: workflow.cores
+    conda:
+        CONDA_ENV
+    shell:
+        "OMP_NUM_THREADS={threads} {EVE3D} joint --method {wildcards.method} --scene {input} --out {RESULTS}/{wildcards.scene}/{wildcards.method}"
+        " --config {params.config} > {log} 2>&1"
