@@ -144,7 +144,7 @@ def geometric_loss(phi: torch.Tensor, defined: torch.Tensor, threshold: float = 
 def plane_homography(ref: CameraTensors, nbr: CameraTensors, normal: torch.Tensor,
                      distance: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) homographies H = K_n (R − t nᵀ/d) K_r⁻¹ induced by the planes n·x = −d
-    (reference camera space, n facing the camera, d > 0)."""
+    (reference camera space, n facing the camera, d > 0; n need not be unit length)."""
     R, t = relative_pose(ref, nbr)
     A = R - t[:, None] * normal[..., None, :] / distance[..., None, None]
     return nbr.K() @ A @ torch.linalg.inv(ref.K())
@@ -164,7 +164,8 @@ def ncc_loss(ref_image: torch.Tensor, nbr_image: torch.Tensor, ref: CameraTensor
     uv_ref = centres[:, None, :] + torch.stack([du, dv], -1).reshape(1, -1, 2)  # (M, P, 2)
     n = normal[pixels[:, 0], pixels[:, 1]]
     d = distance[pixels[:, 0], pixels[:, 1]]
-    H = plane_homography(ref, nbr, F.normalize(n, dim=-1), d.clamp_min(1e-6))
+    # n and d are both blended (scaled by the pixel's alpha): their ratio is the plane's.
+    H = plane_homography(ref, nbr, n, d.clamp_min(1e-6))
     hom = torch.cat([uv_ref, torch.ones_like(uv_ref[..., :1])], -1) @ H.transpose(-1, -2)
     w = hom[..., 2]
     uv_nbr = hom[..., :2] / torch.where(w.abs() > 1e-8, w, torch.full_like(w, 1e-8))[..., None]

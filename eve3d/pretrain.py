@@ -71,7 +71,7 @@ def blend_weights(trainer: Trainer) -> torch.Tensor:
         cam = trainer.views[i].cam
         out = render(m.params["means"].detach(), m.params["quats"].detach(), m.scales.detach(),
                      m.opacities.detach(), torch.zeros(len(m), 3, device=trainer.device), cam, extras=ones,
-                     backend=trainer.s.backend)
+                     backend=trainer.s.backend, antialiased=trainer.s.antialiased)
         out.extras.sum().backward()
         total += ones.grad[:, 0]
     return total

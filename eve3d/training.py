@@ -62,6 +62,10 @@ class TrainSettings:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: str = "auto"
     """Rasteriser (``eve3d.render.BACKENDS``)."""
+    antialiased: bool = True
+    """Opacity compensation for the 0.3 px² screen-space dilation (gsplat's antialiased mode).
+    Without it, the dilation widens edge-on and sub-pixel Gaussians and the optimiser shrinks
+    every surface by about a pixel footprint to match the photos' silhouettes."""
     device: str = "auto"
     """``auto`` = CUDA when present, else CPU."""
     seed: int = 0
@@ -219,7 +223,8 @@ class Trainer:
         centre = -cam.R.T @ cam.t
         degree = self.s.sh_degree if step is None else self.sh_degree(step)
         return render(m.params["means"], m.params["quats"], m.scales, m.opacities, m.colors(centre, degree), cam,
-                      background=self.background, backend=self.s.backend, absgrad=absgrad, **kw)
+                      background=self.background, backend=self.s.backend, absgrad=absgrad,
+                      antialiased=self.s.antialiased, **kw)
 
     def next_view(self) -> View:
         """Training views in a fresh seeded permutation per pass."""

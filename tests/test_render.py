@@ -188,6 +188,25 @@ def test_flat_gaussian_facing_the_camera_renders_its_plane():
     torch.testing.assert_close(normal, torch.tensor([0, 0, -1.0], dtype=torch.float64).expand_as(normal))
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("sigma_px", [0.2, 0.5, 3.0])
+def test_antialiased_mode_compensates_the_dilation(backend, sigma_px):
+    """An isotropic Gaussian of screen variance v centred on a pixel: peak alpha o in classic
+    mode, o·v/(v + 0.3) in antialiased mode (gsplat's rule)."""
+    cam = camera(16, 12)
+    z = 2.0
+    centre = torch.tensor([[(7.5 - cam.cx) * z / cam.fx, (5.5 - cam.cy) * z / cam.fy, z]], dtype=torch.float64)
+    scale = sigma_px * z / cam.fx
+    args = (centre, torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64),
+            torch.tensor([[scale, scale * cam.fx / cam.fy, 1e-9]], dtype=torch.float64),  # a disc facing the camera
+            torch.tensor([0.8], dtype=torch.float64), torch.ones(1, 3, dtype=torch.float64), cam)
+    classic = render(*args, backend=backend).alpha[5, 7]
+    anti = render(*args, backend=backend, antialiased=True).alpha[5, 7]
+    v = sigma_px**2
+    assert float(classic) == pytest.approx(0.8, rel=1e-9)
+    assert float(anti) == pytest.approx(0.8 * v / (v + 0.3), rel=1e-6)
+
+
 @pytest.mark.parametrize("tilt", [0.0, 0.4])
 def test_tilted_flat_gaussian_renders_the_tilted_plane_depth(tilt):
     cam = camera(32, 24, tilt=tilt)

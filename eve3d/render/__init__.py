@@ -68,13 +68,17 @@ class RenderOutput:
 def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
            colors: torch.Tensor, camera: Camera | CameraTensors, *, background: torch.Tensor | None = None,
            extras: torch.Tensor | None = None, backend: str = "auto", absgrad: bool = False,
-           near: float = 0.01, far: float = 1e10, max_pairs: int = 4_000_000) -> RenderOutput:
+           antialiased: bool = False, near: float = 0.01, far: float = 1e10,
+           max_pairs: int = 4_000_000) -> RenderOutput:
     """Render N Gaussians from one pinhole camera.
 
     means (N, 3) world centres; quats (N, 4) rotations (w, x, y, z), any norm; scales (N, 3)
     standard deviations (activated); opacities (N,) in [0, 1]; colors (N, C) features
     composited with the background (C, default zeros); extras (N, E) optional further
     channels. ``max_pairs`` bounds the torch backend's pairs per band of rows (memory).
+    ``antialiased``: gsplat's antialiased mode (Mip-Splatting's 2D filter): each opacity is
+    scaled by √(det Σ2D / det(Σ2D + 0.3 I)), so the 0.3 px² dilation no longer makes small or
+    edge-on Gaussians cover more than they should.
     """
     if backend not in BACKENDS:
         raise Eve3dError(f"render backend {backend!r} unknown; choose one of {', '.join(BACKENDS)}")
@@ -94,6 +98,8 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
         from eve3d.render import cpu, pairs
 
         proj = project(means_c, rotmats, scales, opacities, cam, near, far)
+        if antialiased:
+            opacities = opacities * proj.compensation
         means2d = proj.means2d
         if means2d.requires_grad:
             means2d.retain_grad()
@@ -108,7 +114,7 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
         from eve3d.render.cuda import rasterize_gsplat
 
         image, alpha, radii, means2d, absgrad_buf = rasterize_gsplat(
-            means, quats, scales, opacities, features, cam, near, far, absgrad)
+            means, quats, scales, opacities, features, cam, near, far, absgrad, antialiased)
         n_pairs = None
 
     rgb = image[..., :n_colors] + (1 - alpha)[..., None] * background

@@ -8,8 +8,8 @@ from eve3d.scene import Eve3dError
 
 
 def rasterize_gsplat(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
-                     features: torch.Tensor, cam: CameraTensors, near: float, far: float, absgrad: bool
-                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+                     features: torch.Tensor, cam: CameraTensors, near: float, far: float, absgrad: bool,
+                     antialiased: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """Returns features (H, W, C), alpha (H, W), radii (N, 2), means2d (N, 2), absgrad (N, 2) or None.
 
     ``absgrad`` is gsplat's ``means2d.absgrad``, which exists only after ``backward``; the
@@ -23,8 +23,8 @@ def rasterize_gsplat(means: torch.Tensor, quats: torch.Tensor, scales: torch.Ten
         raise Eve3dError("render backend 'gsplat' needs CUDA tensors; use backend 'cpu' on this device")
     image, alpha, info = rasterization(
         means, quats, scales, opacities, features, cam.viewmat()[None], cam.K()[None], cam.width, cam.height,
-        near_plane=near, far_plane=far, eps2d=EPS2D, packed=False, absgrad=absgrad, rasterize_mode="classic",
-        render_mode="RGB")
+        near_plane=near, far_plane=far, eps2d=EPS2D, packed=False, absgrad=absgrad,
+        rasterize_mode="antialiased" if antialiased else "classic", render_mode="RGB")
     means2d = info["means2d"]  # (1, N, 2): the tensor gsplat differentiates
     if means2d.requires_grad:
         means2d.retain_grad()

@@ -92,6 +92,7 @@ class Projected:
     conics: torch.Tensor  # (N, 3) inverse 2D covariance (a, b, c): σ = ½(a dx² + c dy²) + b dx dy
     depths: torch.Tensor  # (N,) camera z
     radii: torch.Tensor  # (N, 2) int32 half extents of the bounding box in pixels, 0 = culled
+    compensation: torch.Tensor  # (N,) √(det Σ2D / det(Σ2D + 0.3 I)): opacity factor of antialiased mode
 
 
 def project(means_c: torch.Tensor, rotmats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
@@ -115,6 +116,8 @@ def project(means_c: torch.Tensor, rotmats: torch.Tensor, scales: torch.Tensor, 
     b = cov2d[:, 0, 1]
     c = cov2d[:, 1, 1] + EPS2D
     det = a * c - b * b
+    det_raw = (a - EPS2D) * (c - EPS2D) - b * b
+    compensation = torch.sqrt(torch.clamp(det_raw / torch.where(det > 0, det, torch.ones_like(det)), min=0))
     det_safe = torch.where(det > 0, det, torch.ones_like(det))
     conics = torch.stack([c / det_safe, -b / det_safe, a / det_safe], dim=-1)
     means2d = torch.stack([cam.fx * x / z_safe + cam.cx, cam.fy * y / z_safe + cam.cy], dim=-1)
@@ -128,7 +131,7 @@ def project(means_c: torch.Tensor, rotmats: torch.Tensor, scales: torch.Tensor, 
         keep = ((z >= near) & (z <= far) & (det > 0) & (opacities >= ALPHA_MIN) & ((rx > 0) | (ry > 0))
                 & (mx + rx > 0) & (mx - rx < cam.width) & (my + ry > 0) & (my - ry < cam.height))
         radii = torch.stack([rx, ry], dim=-1).to(torch.int32) * keep[:, None]
-    return Projected(means2d, conics, z, radii)
+    return Projected(means2d, conics, z, radii, compensation)
 
 
 def front_to_back(proj: Projected, width: int, height: int) -> tuple[torch.Tensor, torch.Tensor]:
