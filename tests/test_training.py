@@ -176,7 +176,8 @@ def _joint_settings(**kw) -> JointSettings:
 
 
 def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeypatch, one_thread):
-    train_joint(tiny_scene, tmp_path / "straight", _joint_settings())
+    settings = dict(exposure=True, exposure_lr=0.01)  # the per-image exposures are resumed too
+    train_joint(tiny_scene, tmp_path / "straight", _joint_settings(**settings))
     straight = GaussianModel.load_ply(tmp_path / "straight/point_cloud.ply")
     assert not (tmp_path / "straight/checkpoint.pt").exists()  # removed once the outputs exist
 
@@ -189,10 +190,10 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeyp
 
     monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
     with pytest.raises(KeyboardInterrupt):
-        train_joint(tiny_scene, tmp_path / "killed", _joint_settings())
+        train_joint(tiny_scene, tmp_path / "killed", _joint_settings(**settings))
     monkeypatch.setattr(Trainer, "save_checkpoint", save)
     assert (tmp_path / "killed/checkpoint.pt").exists() and not (tmp_path / "killed/point_cloud.ply").exists()
-    train_joint(tiny_scene, tmp_path / "killed", _joint_settings())
+    train_joint(tiny_scene, tmp_path / "killed", _joint_settings(**settings))
     resumed = GaussianModel.load_ply(tmp_path / "killed/point_cloud.ply")
     assert len(resumed) == len(straight)
     for name, value in straight.params.items():

@@ -55,7 +55,7 @@ def test_tiny_training_run(tmp_path):
     """pretrain, 3dgs and pgsr through the workflow on a tiny scene with very short schedules."""
     short = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
     cfg = write_config(tmp_path, methods=["3dgs", "pgsr"],
-                       pretrain={"iterations": 40, "reinit_at": [15], "simplify_at": [30], "densify": short},
+                       pretrain={"iterations": 80, "reinit_at": [], "simplify_at": [60], "densify": short},
                        joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "densify": short})
     results = tmp_path / "results"
     r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
@@ -64,7 +64,8 @@ def test_tiny_training_run(tmp_path):
     assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "3dgs"), ("tiny", "pgsr")]
     assert all(0 < float(row["fscore"]) <= 1 for row in rows)
     views = list(csv.DictReader(open(results / "summary_views.csv")))
-    assert views[0]["stage"] == "pretrain" and int(views[0]["views"]) == 2 and float(views[0]["psnr"]) > 15
+    assert views[0]["stage"] == "pretrain" and int(views[0]["views"]) == 2
+    assert float(views[0]["psnr"]) > 15
     for method in ("3dgs", "pgsr"):
         assert (results / f"tiny/{method}/depth/000.npz").exists()
         assert (results / f"tiny/{method}/previews/000.depth.png").exists()
