@@ -232,3 +232,17 @@ def test_growth_budget_keeps_the_strongest_candidates():
     changed = d.refine(params, optimizers, state, step=600, scene_scale=1.0)
     assert changed == {"clone": 1, "split": 0, "prune": 0} and len(params["means"]) == 7
     assert torch.equal(params["means"].detach()[6], means5)
+
+
+def test_scene_without_points_starts_from_random_points_in_the_camera_sphere(tiny_scene):
+    from dataclasses import replace
+
+    from eve3d.training import initial_points
+
+    bare = replace(tiny_scene, points=None, point_colors=None, point_views=None)
+    pts, colors = initial_points(bare, 500, np.random.default_rng(0))
+    assert pts.shape == (500, 3) and colors.shape == (500, 3)
+    dist = np.linalg.norm(pts - bare.center, axis=1)
+    assert dist.max() <= bare.radius and np.median(dist) > 0.5 * bare.radius  # uniform in the ball
+    same, _ = initial_points(tiny_scene, 500, np.random.default_rng(0))
+    assert same is tiny_scene.points
