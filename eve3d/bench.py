@@ -136,3 +136,58 @@ def format_rasterizer_table(rows: list[RasterizerTiming]) -> str:
 
 def rasterizer_json(rows: list[RasterizerTiming]) -> str:
     return json.dumps([asdict(r) for r in rows], indent=2)
+
+
+# --- stereo --------------------------------------------------------------------------------
+
+def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0) -> dict:
+    """``sgbm`` on the Middlebury Motorcycle pair that scikit-image ships (real photos,
+    ground-truth disparity; inf = unknown): density (confident / known pixels), end-point
+    error and bad-2.0 (% of confident pixels off by more than 2 px)."""
+    from skimage import data
+
+    from eve3d.stereo import SgbmSettings, sgbm_disparity
+
+    left, right, gt = data.stereo_motorcycle()
+    known = np.isfinite(gt)
+    start = time.perf_counter()
+    disp, confident = sgbm_disparity(left, right, float(np.max(gt[known])),
+                                     SgbmSettings(block_size=block_size, lr_threshold=lr_threshold))
+    seconds = time.perf_counter() - start
+    used = known & confident
+    err = np.abs(disp[used] - gt[used])
+    return {"data": "Motorcycle (Middlebury, skimage)", "backend": "sgbm", "size": f"{left.shape[1]}x{left.shape[0]}",
+            "density": float(used.sum() / known.sum()), "epe": float(err.mean()),
+            "bad2": float((err > 2).mean() * 100), "seconds": seconds}
+
+
+def prior_accuracy(priors_dir, reference_dir, scene: str = "") -> dict:
+    """Median relative depth error and density (confident pixels / pixels with reference
+    depth) of one folder of priors against exact depth (the oracle's folder)."""
+    from pathlib import Path
+
+    from eve3d.maps import load_maps
+
+    errors, confident, known = [], 0, 0
+    for ref_path in sorted(Path(reference_dir).glob("*.npz")):
+        ref, prior = load_maps(ref_path), load_maps(Path(priors_dir) / ref_path.name)
+        has = ref["confidence"] > 0
+        use = has & (prior["confidence"] >= 0.5) & (prior["depth"] > 0)
+        errors.append(np.abs(prior["depth"][use] - ref["depth"][use]) / ref["depth"][use])
+        confident, known = confident + int(use.sum()), known + int(has.sum())
+    err = np.concatenate(errors) if errors else np.zeros(0)
+    return {"data": scene or str(priors_dir), "backend": Path(priors_dir).name,
+            "median_rel_error": float(np.median(err)) if len(err) else float("nan"),
+            "density": confident / max(known, 1)}
+
+
+def format_stereo_tables(moto: list[dict], priors: list[dict]) -> str:
+    lines = ["real pair (Middlebury Motorcycle): confident pixels only",
+             "backend  size     density  EPE px  bad-2.0 %  seconds"]
+    lines += [f"{r['backend']:<8} {r['size']:<8} {r['density']:7.3f}  {r['epe']:6.3f}  {r['bad2']:9.2f}  "
+              f"{r['seconds']:7.2f}" for r in moto]
+    if priors:
+        lines += ["", "synthetic scenes: priors against the exact depth, confident pixels",
+                  "scene / priors                              median rel. error  density"]
+        lines += [f"{r['data']:<43} {r['median_rel_error'] * 100:16.2f} %  {r['density']:7.3f}" for r in priors]
+    return "\n".join(lines)

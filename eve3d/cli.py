@@ -28,12 +28,30 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
     print(f"wrote {a.out}")
 
 
+def _cmd_stereo_render(a: argparse.Namespace) -> None:
+    from eve3d.io import load_scene
+    from eve3d.stereo import render_right_views
+
+    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out), a.baseline_factor, a.backend)
+    print(f"wrote {len(info['views'])} right views to {a.out}/right (baseline {info['baseline']:.5g})")
+
+
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.priors.oracle import oracle_priors
 
     scene = load_scene(a.scene)
-    oracle_priors(scene, Path(a.out), Path(a.gt_mesh) if a.gt_mesh else None, preview=not a.no_preview)
+    if a.backend == "oracle":
+        from eve3d.priors.oracle import oracle_priors
+
+        oracle_priors(scene, Path(a.out), Path(a.gt_mesh) if a.gt_mesh else None, preview=not a.no_preview)
+    else:
+        from eve3d.stereo import SgbmSettings, sgbm_priors
+
+        if not a.stereo:
+            raise Eve3dError("--backend sgbm needs --stereo (the output folder of `eve3d stereo-render`)")
+        settings = SgbmSettings(block_size=a.block_size, uniqueness=a.uniqueness, lr_threshold=a.lr_threshold,
+                                min_texture=a.min_texture)
+        sgbm_priors(scene, Path(a.stereo), Path(a.out), settings, preview=not a.no_preview)
     print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
 
 
@@ -127,6 +145,20 @@ def _cmd_bench(a: argparse.Namespace) -> None:
     print(bench.rasterizer_json(rows) if a.json else bench.format_rasterizer_table(rows))
 
 
+def _cmd_bench_stereo(a: argparse.Namespace) -> None:
+    from eve3d import bench
+
+    priors = []
+    for folder in map(Path, a.priors):
+        oracle = folder.parent / "oracle"
+        if not oracle.is_dir():
+            raise Eve3dError(f"{folder}: no oracle priors beside it ({oracle}) to score against")
+        priors.append(bench.prior_accuracy(folder, oracle, f"{folder.parent.parent.name}/{folder.name}"))
+    moto = [bench.stereo_motorcycle()]
+    print(json.dumps({"motorcycle": moto, "priors": priors}, indent=2) if a.json
+          else bench.format_stereo_tables(moto, priors))
+
+
 def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:
     """A plain-text table of metric rows (missing values as '-')."""
     def cell(v):
@@ -205,12 +237,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="1 (default): bit-reproducible; -1: every core, faster but varies between runs")
     s.set_defaults(func=_cmd_sfm)
 
+    s = sub.add_parser("stereo-render", help="right views of virtual stereo pairs, rendered by the pretrained model")
+    s.add_argument("--scene", required=True, help="posed dataset folder")
+    s.add_argument("--model", required=True, help="pretrained 3DGS PLY (pretrain/point_cloud.ply)")
+    s.add_argument("--out", required=True, help="output folder: right/{view}.png and pairs.json (replaced atomically)")
+    s.add_argument("--baseline-factor", type=float, default=0.07, help="baseline B = factor × scene radius")
+    s.add_argument("--backend", choices=["auto", "cpu", "torch", "gsplat"], default="auto")
+    s.set_defaults(func=_cmd_stereo_render)
+
     s = sub.add_parser("stereo-depth", help="depth priors per view ({view}.npz + PNG previews)")
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--out", required=True, help="output folder (replaced atomically)")
-    s.add_argument("--backend", choices=["oracle"], default="oracle",
-                   help="oracle = exact depth of a scene with a known mesh")
+    s.add_argument("--backend", choices=["oracle", "sgbm"], default="oracle",
+                   help="oracle = exact depth of a scene with a known mesh; sgbm = OpenCV SGBM on the stereo pairs")
     s.add_argument("--gt-mesh", help="mesh for the oracle (default: the scene's own GT mesh)")
+    s.add_argument("--stereo", help="sgbm: the output folder of `eve3d stereo-render`")
+    s.add_argument("--block-size", type=int, default=5)
+    s.add_argument("--uniqueness", type=int, default=10)
+    s.add_argument("--lr-threshold", type=float, default=1.0, help="left–right check tolerance in pixels")
+    s.add_argument("--min-texture", type=float, default=0.5,
+                   help="grey-level std (0-255) over the block below which a pixel is not confident")
     s.add_argument("--no-preview", action="store_true")
     s.set_defaults(func=_cmd_stereo_depth)
 
@@ -271,6 +317,11 @@ def _add_bench_parser(sub) -> None:
     r.add_argument("--repeats", type=int, default=5, help="timed runs per size (median; one more warms up)")
     r.add_argument("--json", action="store_true", help="machine-readable output")
     r.set_defaults(func=_cmd_bench)
+    st = what.add_parser("stereo", help="sgbm on the Motorcycle pair; priors of synthetic scenes vs exact depth")
+    st.add_argument("--priors", nargs="*", default=[], metavar="DIR",
+                    help="prior folders (results/{scene}/priors/{backend}) to score against the oracle folder beside them")
+    st.add_argument("--json", action="store_true", help="machine-readable output")
+    st.set_defaults(func=_cmd_bench_stereo)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -28,7 +28,7 @@ def write_config(tmp_path, **overrides):
 def test_default_config_dry_run_lists_every_stage(tmp_path):
     r = snakemake("-n", "--config", f"results={tmp_path}")
     assert r.returncode == 0, r.stderr
-    for rule in ("synth", "stereo_depth", "pretrain", "joint", "mesh", "evaluate", "summary"):
+    for rule in ("synth", "stereo_depth", "stereo_render", "pretrain", "joint", "mesh", "evaluate", "summary"):
         assert rule in r.stdout + r.stderr
 
 
@@ -52,20 +52,22 @@ def test_bad_training_key_is_named_before_any_job(tmp_path):
 
 
 def test_tiny_training_run(tmp_path):
-    """pretrain, 3dgs and pgsr through the workflow on a tiny scene with very short schedules."""
+    """pretrain, stereo priors, stereo-tsdf, 3dgs and pgsr through the workflow on a tiny
+    scene with very short schedules."""
     short = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
-    cfg = write_config(tmp_path, methods=["3dgs", "pgsr"],
+    cfg = write_config(tmp_path, methods=["stereo-tsdf", "3dgs", "pgsr"],
                        pretrain={"iterations": 80, "reinit_at": [], "simplify_at": [60], "densify": short},
                        joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "densify": short})
     results = tmp_path / "results"
     r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
     rows = list(csv.DictReader(open(results / "summary.csv")))
-    assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "3dgs"), ("tiny", "pgsr")]
+    assert [row["method"] for row in rows] == ["3dgs", "pgsr", "stereo-tsdf"]
     assert all(0 < float(row["fscore"]) <= 1 for row in rows)
     views = list(csv.DictReader(open(results / "summary_views.csv")))
     assert views[0]["stage"] == "pretrain" and int(views[0]["views"]) == 2
     assert float(views[0]["psnr"]) > 15
+    assert (results / "tiny/stereo/right/000.png").exists() and (results / "tiny/priors/sgbm/000.npz").exists()
     for method in ("3dgs", "pgsr"):
         assert (results / f"tiny/{method}/depth/000.npz").exists()
         assert (results / f"tiny/{method}/previews/000.depth.png").exists()

@@ -91,7 +91,26 @@ def depth_source(wildcards):
     """Per-view depth maps that a method's mesh fuses."""
     if wildcards.method == "oracle":
         return f"{RESULTS}/{wildcards.scene}/priors/oracle"
+    if wildcards.method == "stereo-tsdf":  # the GS2Mesh-style baseline: fuse the priors as they are
+        return f"{RESULTS}/{wildcards.scene}/priors/{config['stereo']['backend']}"
     return f"{RESULTS}/{wildcards.scene}/{wildcards.method}/depth"
+
+
+def stereo_depth_inputs(wildcards):
+    inputs = {"scene": posed_dataset(wildcards)}
+    if wildcards.backend == "oracle":
+        inputs["gt"] = gt_input(wildcards)
+    else:
+        inputs["stereo"] = f"{RESULTS}/{wildcards.scene}/stereo"
+    return inputs
+
+
+def stereo_depth_args(wildcards, input):
+    if wildcards.backend == "oracle":
+        return f"--gt-mesh {gt_mesh(wildcards)}"
+    s = config["stereo"]
+    return (f"--stereo {input.stereo} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"
+            f" --lr-threshold {s['lr_threshold']} --min-texture {s['min_texture']}")
 
 
 def training_config():
@@ -105,8 +124,10 @@ def metrics_files():
 
 
 def pretrain_metrics():
-    """Held-out view metrics of the pretrain stage, for scenes where a method trains."""
-    return [f"{RESULTS}/{s}/pretrain/metrics.json" for s in SCENES if set(scene_methods(s)) & set(TRAINED)]
+    """Held-out view metrics of the pretrain stage, for scenes where a method trains or uses
+    stereo priors (rendered by the pretrained model)."""
+    users = set(TRAINED) | {"stereo-tsdf"}
+    return [f"{RESULTS}/{s}/pretrain/metrics.json" for s in SCENES if set(scene_methods(s)) & users]
 
 
 def mesh_args(wildcards):

@@ -1,20 +1,37 @@
-# Depth priors per view. Backends so far: oracle (exact depth of a scene with a GT mesh).
+# Depth priors per view: the oracle (exact depth of a scene with a GT mesh), or a stereo
+# backend run on virtual stereo pairs (the photo, and a right view rendered by the pretrained model).
+
+
+rule stereo_render:
+    input:
+        scene=posed_dataset,
+        model=f"{RESULTS}/{{scene}}/pretrain/point_cloud.ply",
+    output:
+        directory(f"{RESULTS}/{{scene}}/stereo"),
+    params:
+        baseline=lambda wc: config["stereo"]["baseline_factor"],
+    log:
+        f"{RESULTS}/logs/{{scene}}/stereo_render.log",
+    conda:
+        CONDA_ENV
+    shell:
+        "{EVE3D} stereo-render --scene {input.scene} --model {input.model} --out {output}"
+        " --baseline-factor {params.baseline} > {log} 2>&1"
 
 
 rule stereo_depth:
     input:
-        scene=posed_dataset,
-        gt=gt_input,
+        unpack(stereo_depth_inputs),
     output:
         directory(f"{RESULTS}/{{scene}}/priors/{{backend}}"),
     wildcard_constraints:
-        backend="oracle",
+        backend="oracle|sgbm",
     params:
-        gt=gt_mesh,
+        args=stereo_depth_args,
     log:
         f"{RESULTS}/logs/{{scene}}/stereo_depth_{{backend}}.log",
     conda:
         CONDA_ENV
     shell:
-        "{EVE3D} stereo-depth --backend {wildcards.backend} --scene {input.scene} --gt-mesh {params.gt}"
-        " --out {output} > {log} 2>&1"
+        "{EVE3D} stereo-depth --backend {wildcards.backend} --scene {input.scene} --out {output} {params.args}"
+        " > {log} 2>&1"
