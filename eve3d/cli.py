@@ -44,14 +44,24 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
         from eve3d.priors.oracle import oracle_priors
 
         oracle_priors(scene, Path(a.out), Path(a.gt_mesh) if a.gt_mesh else None, preview=not a.no_preview)
-    else:
+    elif not a.stereo:
+        raise Eve3dError(f"--backend {a.backend} needs --stereo (the output folder of `eve3d stereo-render`)")
+    elif a.backend == "sgbm":
         from eve3d.stereo import SgbmSettings, sgbm_priors
 
-        if not a.stereo:
-            raise Eve3dError("--backend sgbm needs --stereo (the output folder of `eve3d stereo-render`)")
         settings = SgbmSettings(block_size=a.block_size, uniqueness=a.uniqueness, lr_threshold=a.lr_threshold,
                                 min_texture=a.min_texture)
         sgbm_priors(scene, Path(a.stereo), Path(a.out), settings, preview=not a.no_preview)
+    else:
+        from eve3d.config import load_mapping
+        from eve3d.priors.onnx import OnnxSpec, OnnxStereo
+        from eve3d.stereo import stereo_priors
+        from eve3d.training import settings_from_dict
+
+        if not a.onnx:
+            raise Eve3dError("--backend onnx needs --onnx SPEC (a YAML/JSON file or inline JSON; config stereo.onnx)")
+        spec = settings_from_dict(OnnxSpec, load_mapping(a.onnx, "--onnx"), "stereo.onnx")
+        stereo_priors(scene, Path(a.stereo), Path(a.out), OnnxStereo(spec), "ONNX stereo", preview=not a.no_preview)
     print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
 
 
@@ -248,8 +258,10 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("stereo-depth", help="depth priors per view ({view}.npz + PNG previews)")
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--out", required=True, help="output folder (replaced atomically)")
-    s.add_argument("--backend", choices=["oracle", "sgbm"], default="oracle",
-                   help="oracle = exact depth of a scene with a known mesh; sgbm = OpenCV SGBM on the stereo pairs")
+    s.add_argument("--backend", choices=["oracle", "sgbm", "onnx"], default="oracle",
+                   help="oracle = exact depth of a scene with a known mesh; sgbm = OpenCV SGBM on the stereo pairs; "
+                        "onnx = a stereo network exported to ONNX (--onnx)")
+    s.add_argument("--onnx", help="onnx: the model spec, a YAML/JSON file or inline JSON (keys: eve3d.priors.onnx.OnnxSpec)")
     s.add_argument("--gt-mesh", help="mesh for the oracle (default: the scene's own GT mesh)")
     s.add_argument("--stereo", help="sgbm: the output folder of `eve3d stereo-render`")
     s.add_argument("--block-size", type=int, default=5)

@@ -74,21 +74,25 @@ def load_config(path: str | Path) -> dict:
 TRAINING_SECTIONS = ("train", "pretrain", "joint")
 
 
+def load_mapping(spec: str, option: str) -> dict:
+    """A mapping given on the command line: a YAML/JSON file, or inline JSON (``{...}``)."""
+    inline = spec.lstrip().startswith("{")
+    source = option if inline else spec
+    try:
+        value = yaml.safe_load(spec if inline else Path(spec).read_text()) or {}
+    except (OSError, yaml.YAMLError) as e:
+        raise Eve3dError(f"{source}: cannot read it ({e})") from None
+    if not isinstance(value, dict):
+        raise Eve3dError(f"{source}: expected a mapping of keys")
+    return value
+
+
 def training_config(spec: str | None = None, overrides: list[str] = ()) -> dict:
     """The ``train``, ``pretrain`` and ``joint`` sections for a training CLI: the preset
     (``cpu`` unless the config names one), then ``spec`` (a workflow config file, or an
     inline JSON/YAML mapping as the workflow passes it), then ``SECTION.KEY=VALUE``
     overrides (values parsed as YAML)."""
-    user: dict = {}
-    if spec:
-        text = spec if spec.lstrip().startswith("{") else None
-        source = "--config" if text is not None else spec
-        try:
-            user = yaml.safe_load(text if text is not None else Path(spec).read_text()) or {}
-        except (OSError, yaml.YAMLError) as e:
-            raise Eve3dError(f"{source}: cannot read configuration ({e})") from None
-        if not isinstance(user, dict):
-            raise Eve3dError(f"{source}: expected a mapping of configuration keys")
+    user = load_mapping(spec, "--config") if spec else {}
     preset_name = user.get("preset", "cpu")
     preset_path = PRESETS / f"{preset_name}.yaml"
     if not preset_path.is_file():

@@ -7,6 +7,7 @@ further left in the right image (x_right = x_left − d) and Z = fx·B/d.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -51,24 +52,33 @@ def _matcher(num_disparities: int, s: SgbmSettings):
                                  mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
 
 
+def mirrored(matcher: Callable[[np.ndarray, np.ndarray], np.ndarray], left: np.ndarray,
+             right: np.ndarray) -> np.ndarray:
+    """The right image's own disparity from a left-image matcher: mirroring both images
+    turns the right view into a left view (no dedicated right matcher needed)."""
+    flip = lambda im: np.ascontiguousarray(im[:, ::-1])  # noqa: E731
+    return np.ascontiguousarray(matcher(flip(right), flip(left))[:, ::-1])
+
+
+def left_right_consistent(disp_l: np.ndarray, disp_r: np.ndarray, threshold: float) -> np.ndarray:
+    """Left pixels whose disparity the right image's disparity confirms within ``threshold`` px."""
+    w = disp_l.shape[1]
+    x = np.arange(w)[None, :] - disp_l  # where each left pixel lands in the right image
+    back = np.take_along_axis(disp_r, np.clip(np.round(x).astype(int), 0, w - 1), axis=1)
+    return (disp_l > 0) & (x >= 0) & (back > 0) & (np.abs(back - disp_l) <= threshold)
+
+
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
                    s: SgbmSettings | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Disparity of the left image (float32, px; 0 where invalid) and the left–right
-    consistency mask. The right image's own disparity comes from matching the mirrored
-    pair (no opencv-contrib needed): mirroring turns the right view into a left view."""
+    """Disparity of the left image (float32, px; 0 where invalid) and the confidence mask
+    (left–right check and texture gate)."""
     s = s or SgbmSettings()
     num = int(np.ceil(max(max_disparity, 16) / 16.0)) * 16
-    matcher = _matcher(num, s)
-    disp_l = matcher.compute(left, right).astype(np.float32) / 16.0
-    disp_r = matcher.compute(np.ascontiguousarray(right[:, ::-1]),
-                             np.ascontiguousarray(left[:, ::-1])).astype(np.float32)[:, ::-1] / 16.0
-    valid = disp_l > 0
-    h, w = disp_l.shape
-    x = np.arange(w)[None, :] - disp_l  # where each left pixel lands in the right image
-    xr = np.clip(np.round(x).astype(int), 0, w - 1)
-    back = np.take_along_axis(disp_r, xr, axis=1)
-    consistent = valid & (x >= 0) & (back > 0) & (np.abs(back - disp_l) <= s.lr_threshold)
-    return np.where(valid, disp_l, 0).astype(np.float32), consistent & (local_std(left, s.block_size) >= s.min_texture)
+    sgbm = _matcher(num, s)
+    match = lambda a, b: sgbm.compute(a, b).astype(np.float32) / 16.0  # noqa: E731
+    disp_l = match(left, right)
+    consistent = left_right_consistent(disp_l, mirrored(match, left, right), s.lr_threshold)
+    return np.where(disp_l > 0, disp_l, 0).astype(np.float32), consistent & (local_std(left, s.block_size) >= s.min_texture)
 
 
 def local_std(image: np.ndarray, size: int) -> np.ndarray:
@@ -112,10 +122,12 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline_f
     return info
 
 
-def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSettings | None = None,
-                preview: bool = True) -> None:
-    """``stereo_depth --backend sgbm``: depth Z = fx·B/d, confidence = the left–right check,
-    normals from the depth, for every view (``{view}.npz`` and PNG previews)."""
+def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
+                  matcher: Callable[[np.ndarray, np.ndarray, float], tuple[np.ndarray, np.ndarray]],
+                  name: str, preview: bool = True) -> None:
+    """``stereo_depth`` for a disparity backend: ``matcher(left, right, max_disparity)`` gives
+    the left disparity and its confidence; depth Z = fx·B/d and normals from the depth are
+    written for every view (``{view}.npz`` and PNG previews)."""
     import torch
 
     from eve3d.losses import depth_to_normal
@@ -127,7 +139,7 @@ def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSet
     pairs = json.loads(pairs_path.read_text())
     baseline = float(pairs["baseline"])
     with atomic_dir(out_dir) as tmp:
-        for cam in tqdm(scene.cameras, desc="SGBM", unit="view"):
+        for cam in tqdm(scene.cameras, desc=name, unit="view"):
             if cam.view_id not in pairs["views"]:
                 raise Eve3dError(f"{pairs_path}: no right view for {cam.view_id}")
             left = read_image(cam.image_path)
@@ -135,8 +147,14 @@ def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSet
             if right.shape != left.shape:
                 raise Eve3dError(f"{stereo_dir / 'right' / cam.view_id}.png: {right.shape[1]}×{right.shape[0]}, "
                                  f"the photo is {left.shape[1]}×{left.shape[0]}")
-            disp, consistent = sgbm_disparity(left, right, pairs["views"][cam.view_id]["max_disparity"], settings)
+            disp, confident = matcher(left, right, pairs["views"][cam.view_id]["max_disparity"])
             depth = np.where(disp > 0, cam.fx * baseline / np.maximum(disp, 1e-6), 0).astype(np.float32)
             normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()
             save_maps(tmp / f"{cam.view_id}.npz", preview=preview, depth=depth,
-                      confidence=consistent.astype(np.float32), normal=normal)
+                      confidence=confident.astype(np.float32), normal=normal)
+
+
+def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSettings | None = None,
+                preview: bool = True) -> None:
+    """``stereo_depth --backend sgbm``."""
+    stereo_priors(scene, stereo_dir, out_dir, lambda l, r, m: sgbm_disparity(l, r, m, settings), "SGBM", preview)

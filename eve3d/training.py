@@ -94,7 +94,10 @@ def settings_from_dict(cls, values: dict, where: str = "settings"):
                 raise Eve3dError(f"{where}.{name}: expected a mapping, got {value!r}")
             kwargs[name] = settings_from_dict(type(default), value, f"{where}.{name}")
             continue
-        if isinstance(default, tuple):
+        if default is None:  # optional: any value of the documented form
+            ok = True
+            value = tuple(value) if isinstance(value, list) else value
+        elif isinstance(default, tuple):
             ok = isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) for v in value)
             value = tuple(value) if ok else value
         elif isinstance(default, bool):

@@ -47,18 +47,26 @@ def test_sgbm_recovers_a_constant_disparity_and_rejects_flat_regions():
     assert not confident[:, 100:].any()
 
 
-def test_sgbm_priors_write_depth_fx_b_over_d(tmp_path):
+def stereo_scene(tmp_path, disparity: int, baseline: float = 0.5):
+    """One view (fx = 100) and its right view, a constant-disparity textured pair; the pair
+    file is written only on request (see the test of its absence)."""
     import cv2
 
-    left, right = shifted_pair(10)
+    left, right = shifted_pair(disparity)
     cv2.imwrite(str(tmp_path / "v.png"), left[..., ::-1])
     (tmp_path / "stereo/right").mkdir(parents=True)
     cv2.imwrite(str(tmp_path / "stereo/right/v.png"), right[..., ::-1])
     K = np.array([[100.0, 0, 64], [0, 100, 48], [0, 0, 1]])
     scene = Scene(tmp_path, [Camera("v.png", 128, 96, K, np.eye(3), np.zeros(3), image_path=tmp_path / "v.png")])
+    pairs = {"baseline": baseline, "views": {"v": {"max_disparity": 3 * disparity}}}
+    return scene, lambda: (tmp_path / "stereo" / PAIRS_FILE).write_text(json.dumps(pairs))
+
+
+def test_sgbm_priors_write_depth_fx_b_over_d(tmp_path):
+    scene, write_pairs = stereo_scene(tmp_path, 10)
     with pytest.raises(Eve3dError, match="pairs.json: missing"):
         sgbm_priors(scene, tmp_path / "stereo", tmp_path / "priors")
-    (tmp_path / "stereo" / PAIRS_FILE).write_text(json.dumps({"baseline": 0.5, "views": {"v": {"max_disparity": 30}}}))
+    write_pairs()
     sgbm_priors(scene, tmp_path / "stereo", tmp_path / "priors")
     maps = load_maps(tmp_path / "priors/v.npz")
     sure = maps["confidence"] > 0.5

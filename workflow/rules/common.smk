@@ -34,6 +34,11 @@ try:
 
     stage_settings(PretrainSettings, "pretrain", config)
     stage_settings(JointSettings, "joint", config)
+    if config["stereo"]["backend"] == "onnx":
+        from eve3d.priors.onnx import OnnxSpec
+        from eve3d.training import settings_from_dict
+
+        settings_from_dict(OnnxSpec, config["stereo"]["onnx"], "stereo.onnx")
 except Eve3dError as e:
     raise WorkflowError(f"config: {e}")
 # Jobs run `python -m eve3d`: the interpreter that runs Snakemake (a venv) comes first on
@@ -109,6 +114,8 @@ def stereo_depth_args(wildcards, input):
     if wildcards.backend == "oracle":
         return f"--gt-mesh {gt_mesh(wildcards)}"
     s = config["stereo"]
+    if wildcards.backend == "onnx":
+        return f"--stereo {input.stereo} --onnx {shlex.quote(json.dumps(s['onnx']))}"
     return (f"--stereo {input.stereo} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"
             f" --lr-threshold {s['lr_threshold']} --min-texture {s['min_texture']}")
 

@@ -25,7 +25,7 @@ rule stereo_depth:
     output:
         directory(f"{RESULTS}/{{scene}}/priors/{{backend}}"),
     wildcard_constraints:
-        backend="oracle|sgbm",
+        backend="oracle|sgbm|onnx",
     params:
         args=stereo_depth_args,
     log:
