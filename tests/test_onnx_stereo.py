@@ -11,7 +11,8 @@ from eve3d.stereo import stereo_priors
 from tests.test_stereo import shifted_pair, stereo_scene
 
 # torch's TorchScript-based exporter (no onnxscript needed) warns that it is the legacy one.
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning", "ignore::torch.jit.TracerWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning", "ignore::torch.jit.TracerWarning",
+                                        "ignore:Constant folding:UserWarning")
 
 
 class CostVolume(torch.nn.Module):
