@@ -25,6 +25,8 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q torch==2.13.0
+	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
+	$(BIN)/pip uninstall -q -y opencv-python-headless opencv-python 2>/dev/null || true
 	$(BIN)/pip install -q -e '.[test]'
 	@touch $@
 

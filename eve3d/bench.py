@@ -140,7 +140,7 @@ def rasterizer_json(rows: list[RasterizerTiming]) -> str:
 
 # --- stereo --------------------------------------------------------------------------------
 
-def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0) -> dict:
+def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0, wls: bool = False) -> dict:
     """``sgbm`` on the Middlebury Motorcycle pair that scikit-image ships (real photos,
     ground-truth disparity; inf = unknown): density (confident / known pixels), end-point
     error and bad-2.0 (% of confident pixels off by more than 2 px)."""
@@ -151,12 +151,12 @@ def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0) -> dict:
     left, right, gt = data.stereo_motorcycle()
     known = np.isfinite(gt)
     start = time.perf_counter()
-    disp, confident = sgbm_disparity(left, right, float(np.max(gt[known])),
-                                     SgbmSettings(block_size=block_size, lr_threshold=lr_threshold))
+    disp, confidence = sgbm_disparity(left, right, float(np.max(gt[known])),
+                                      SgbmSettings(block_size=block_size, lr_threshold=lr_threshold, wls=wls))
     seconds = time.perf_counter() - start
-    used = known & confident
+    used = known & (confidence >= 0.5)
     err = np.abs(disp[used] - gt[used])
-    return {"data": "Motorcycle (Middlebury, skimage)", "backend": "sgbm", "size": f"{left.shape[1]}x{left.shape[0]}",
+    return {"data": "Motorcycle (Middlebury, skimage)", "backend": "sgbm+wls" if wls else "sgbm", "size": f"{left.shape[1]}x{left.shape[0]}",
             "density": float(used.sum() / known.sum()), "epe": float(err.mean()),
             "bad2": float((err > 2).mean() * 100), "seconds": seconds}
 

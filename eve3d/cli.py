@@ -50,7 +50,7 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
         from eve3d.stereo import SgbmSettings, sgbm_priors
 
         settings = SgbmSettings(block_size=a.block_size, uniqueness=a.uniqueness, lr_threshold=a.lr_threshold,
-                                min_texture=a.min_texture)
+                                min_texture=a.min_texture, wls=a.wls, wls_lambda=a.wls_lambda, wls_sigma=a.wls_sigma)
         sgbm_priors(scene, Path(a.stereo), Path(a.out), settings, preview=not a.no_preview)
     else:
         from eve3d.config import load_mapping
@@ -100,8 +100,9 @@ def _add_training_options(s: argparse.ArgumentParser) -> None:
 
 def _cmd_mesh(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.mesh import MeshSettings, fuse, write_mesh
+    from eve3d.mesh import MeshSettings, check_mesh_path, fuse, write_mesh
 
+    check_mesh_path(Path(a.out))
     scene = load_scene(a.scene, check_images=False)
     if a.kind:
         scene.kind = a.kind
@@ -164,7 +165,7 @@ def _cmd_bench_stereo(a: argparse.Namespace) -> None:
         if not oracle.is_dir():
             raise Eve3dError(f"{folder}: no oracle priors beside it ({oracle}) to score against")
         priors.append(bench.prior_accuracy(folder, oracle, f"{folder.parent.parent.name}/{folder.name}"))
-    moto = [bench.stereo_motorcycle()]
+    moto = [bench.stereo_motorcycle(), bench.stereo_motorcycle(wls=True)]
     print(json.dumps({"motorcycle": moto, "priors": priors}, indent=2) if a.json
           else bench.format_stereo_tables(moto, priors))
 
@@ -269,6 +270,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--lr-threshold", type=float, default=1.0, help="left–right check tolerance in pixels")
     s.add_argument("--min-texture", type=float, default=0.5,
                    help="grey-level std (0-255) over the block below which a pixel is not confident")
+    s.add_argument("--wls", action="store_true",
+                   help="sgbm: WLS-filter the disparity (dense; confidence = the filter's confidence map)")
+    s.add_argument("--wls-lambda", type=float, default=8000.0, help="WLS smoothness weight")
+    s.add_argument("--wls-sigma", type=float, default=1.5, help="WLS colour sensitivity")
     s.add_argument("--no-preview", action="store_true")
     s.set_defaults(func=_cmd_stereo_depth)
 
@@ -284,7 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("mesh", help="TSDF-fuse per-view depth maps into mesh.ply")
     s.add_argument("--scene", required=True)
     s.add_argument("--depth", required=True, help="folder of {view}.npz depth maps")
-    s.add_argument("--out", required=True)
+    s.add_argument("--out", required=True, help="mesh file to write (.ply)")
     s.add_argument("--kind", choices=["object", "scene"], help="override the scene kind")
     s.add_argument("--voxel", type=float)
     s.add_argument("--coarsen", type=float, default=1.0)

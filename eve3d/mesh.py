@@ -138,10 +138,20 @@ def keep_large_clusters(mesh, min_fraction: float):
     return mesh
 
 
+MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb")
+
+
+def check_mesh_path(path: Path) -> None:
+    """Refuse an output name that names no mesh format (before the fusion, not after)."""
+    if Path(path).suffix.lower() not in MESH_SUFFIXES:
+        raise Eve3dError(f"{path}: not a mesh file name; give one ending in {', '.join(MESH_SUFFIXES)}")
+
+
 def write_mesh(mesh, path: Path) -> None:
-    """Write a mesh as binary PLY, atomically."""
+    """Write a mesh atomically, in the format its suffix names (binary PLY for ``.ply``)."""
     import open3d as o3d
 
+    check_mesh_path(path)
     with atomic_path(path) as tmp:
         if not o3d.io.write_triangle_mesh(str(tmp), mesh):
             raise Eve3dError(f"{path}: could not write mesh")

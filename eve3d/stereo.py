@@ -1,4 +1,5 @@
-"""Virtual stereo: right cameras, and the ``sgbm`` disparity backend with its left–right check.
+"""Virtual stereo: right cameras, and the ``sgbm`` disparity backend with its left–right check
+and optional WLS filtering (opencv-contrib's ``ximgproc``).
 
 The right camera of a view has the same rotation and intrinsics, its centre moved by the
 baseline B along the camera's own x axis, so a point at depth Z appears d = fx·B/Z pixels
@@ -40,6 +41,11 @@ class SgbmSettings:
     """Pixels whose grey-level standard deviation over the block (0–255 scale) is below this
     are not confident: SGM's path aggregation fills flat regions (an empty black background)
     with disparities that pass the left–right check but mean nothing."""
+    wls: bool = False
+    """Edge-aware WLS filtering of the disparity (dense); the confidence becomes the filter's
+    own confidence map / 255 (its left–right check, lowered near depth edges)."""
+    wls_lambda: float = 8000.0
+    wls_sigma: float = 1.5
 
 
 def _matcher(num_disparities: int, s: SgbmSettings):
@@ -54,8 +60,8 @@ def _matcher(num_disparities: int, s: SgbmSettings):
 
 def mirrored(matcher: Callable[[np.ndarray, np.ndarray], np.ndarray], left: np.ndarray,
              right: np.ndarray) -> np.ndarray:
-    """The right image's own disparity from a left-image matcher: mirroring both images
-    turns the right view into a left view (no dedicated right matcher needed)."""
+    """The right image's own disparity from a left-image matcher (a stereo network has no
+    right matcher): mirroring both images turns the right view into a left view."""
     flip = lambda im: np.ascontiguousarray(im[:, ::-1])  # noqa: E731
     return np.ascontiguousarray(matcher(flip(right), flip(left))[:, ::-1])
 
@@ -70,15 +76,27 @@ def left_right_consistent(disp_l: np.ndarray, disp_r: np.ndarray, threshold: flo
 
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
                    s: SgbmSettings | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Disparity of the left image (float32, px; 0 where invalid) and the confidence mask
-    (left–right check and texture gate)."""
+    """Disparity of the left image (float32, px; 0 where invalid) and its confidence (float32
+    in [0, 1]): the left–right check against ximgproc's right matcher, or the WLS filter's
+    confidence map, in both cases gated by texture."""
+    import cv2
+
     s = s or SgbmSettings()
     num = int(np.ceil(max(max_disparity, 16) / 16.0)) * 16
     sgbm = _matcher(num, s)
-    match = lambda a, b: sgbm.compute(a, b).astype(np.float32) / 16.0  # noqa: E731
-    disp_l = match(left, right)
-    consistent = left_right_consistent(disp_l, mirrored(match, left, right), s.lr_threshold)
-    return np.where(disp_l > 0, disp_l, 0).astype(np.float32), consistent & (local_std(left, s.block_size) >= s.min_texture)
+    right_matcher = cv2.ximgproc.createRightMatcher(sgbm)
+    raw_l, raw_r = sgbm.compute(left, right), right_matcher.compute(right, left)  # 1/16 px; right ≤ 0
+    textured = local_std(left, s.block_size) >= s.min_texture
+    if s.wls:
+        wls = cv2.ximgproc.createDisparityWLSFilter(sgbm)
+        wls.setLambda(s.wls_lambda)
+        wls.setSigmaColor(s.wls_sigma)
+        disp = wls.filter(raw_l, left, disparity_map_right=raw_r).astype(np.float32) / 16.0
+        confidence = wls.getConfidenceMap().astype(np.float32) / 255.0
+    else:
+        disp = raw_l.astype(np.float32) / 16.0
+        confidence = left_right_consistent(disp, -raw_r.astype(np.float32) / 16.0, s.lr_threshold)
+    return np.maximum(disp, 0).astype(np.float32), np.where(textured & (disp > 0), confidence, 0).astype(np.float32)
 
 
 def local_std(image: np.ndarray, size: int) -> np.ndarray:
@@ -147,11 +165,11 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
             if right.shape != left.shape:
                 raise Eve3dError(f"{stereo_dir / 'right' / cam.view_id}.png: {right.shape[1]}×{right.shape[0]}, "
                                  f"the photo is {left.shape[1]}×{left.shape[0]}")
-            disp, confident = matcher(left, right, pairs["views"][cam.view_id]["max_disparity"])
+            disp, confidence = matcher(left, right, pairs["views"][cam.view_id]["max_disparity"])
             depth = np.where(disp > 0, cam.fx * baseline / np.maximum(disp, 1e-6), 0).astype(np.float32)
             normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()
             save_maps(tmp / f"{cam.view_id}.npz", preview=preview, depth=depth,
-                      confidence=confident.astype(np.float32), normal=normal)
+                      confidence=confidence.astype(np.float32), normal=normal)
 
 
 def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSettings | None = None,

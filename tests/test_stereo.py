@@ -7,7 +7,7 @@ import pytest
 from eve3d.bench import stereo_motorcycle
 from eve3d.maps import load_maps
 from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.stereo import PAIRS_FILE, right_camera, sgbm_disparity, sgbm_priors
+from eve3d.stereo import PAIRS_FILE, SgbmSettings, right_camera, sgbm_disparity, sgbm_priors
 
 
 def test_right_camera_gives_disparity_fx_b_over_z():
@@ -41,10 +41,23 @@ def shifted_pair(disparity: int, h: int = 96, w: int = 128):
 def test_sgbm_recovers_a_constant_disparity_and_rejects_flat_regions():
     left, right = shifted_pair(8)
     left[:, 90:] = right[:, 90:] = 0  # a flat black band: nothing to match
-    disp, confident = sgbm_disparity(left, right, 32)
-    core = confident[:, 40:80]
+    disp, confidence = sgbm_disparity(left, right, 32)
+    core = confidence[:, 40:80] >= 0.5
     assert core.mean() > 0.9 and np.allclose(disp[:, 40:80][core], 8, atol=0.1)
-    assert not confident[:, 100:].any()
+    assert not confidence[:, 100:].any()
+
+
+def test_wls_fills_the_disparity_and_keeps_it():
+    """WLS gives a value to pixels that the left–right check rejects, keeps the constant
+    disparity where it is confident, and its confidence still ignores the flat band."""
+    left, right = shifted_pair(8)
+    left[:, 90:] = right[:, 90:] = 0
+    raw, raw_conf = sgbm_disparity(left, right, 32)
+    disp, confidence = sgbm_disparity(left, right, 32, SgbmSettings(wls=True))
+    core = confidence[:, 40:80] >= 0.5
+    assert core.mean() > 0.9 and np.allclose(disp[:, 40:80][core], 8, atol=0.1)
+    assert (disp[:, :90] > 0).mean() > (raw[:, :90] > 0).mean()
+    assert not confidence[:, 100:].any() and 0 <= confidence.min() and confidence.max() <= 1
 
 
 def stereo_scene(tmp_path, disparity: int, baseline: float = 0.5):

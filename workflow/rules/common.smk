@@ -117,7 +117,8 @@ def stereo_depth_args(wildcards, input):
     if wildcards.backend == "onnx":
         return f"--stereo {input.stereo} --onnx {shlex.quote(json.dumps(s['onnx']))}"
     return (f"--stereo {input.stereo} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"
-            f" --lr-threshold {s['lr_threshold']} --min-texture {s['min_texture']}")
+            f" --lr-threshold {s['lr_threshold']} --min-texture {s['min_texture']}"
+            + (f" --wls --wls-lambda {s['wls_lambda']} --wls-sigma {s['wls_sigma']}" if s["wls"] else ""))
 
 
 def training_config():
