@@ -221,6 +221,8 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from eve3d.stereo import SgbmSettings
+
     p = argparse.ArgumentParser(prog="eve3d", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -265,15 +267,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--onnx", help="onnx: the model spec, a YAML/JSON file or inline JSON (keys: eve3d.priors.onnx.OnnxSpec)")
     s.add_argument("--gt-mesh", help="mesh for the oracle (default: the scene's own GT mesh)")
     s.add_argument("--stereo", help="sgbm: the output folder of `eve3d stereo-render`")
-    s.add_argument("--block-size", type=int, default=5)
-    s.add_argument("--uniqueness", type=int, default=10)
-    s.add_argument("--lr-threshold", type=float, default=1.0, help="left–right check tolerance in pixels")
-    s.add_argument("--min-texture", type=float, default=0.5,
+    sgbm = SgbmSettings()
+    s.add_argument("--block-size", type=int, default=sgbm.block_size)
+    s.add_argument("--uniqueness", type=int, default=sgbm.uniqueness)
+    s.add_argument("--lr-threshold", type=float, default=sgbm.lr_threshold, help="left–right check tolerance in pixels")
+    s.add_argument("--min-texture", type=float, default=sgbm.min_texture,
                    help="grey-level std (0-255) over the block below which a pixel is not confident")
     s.add_argument("--wls", action="store_true",
                    help="sgbm: WLS-filter the disparity (dense; confidence = the filter's confidence map)")
-    s.add_argument("--wls-lambda", type=float, default=8000.0, help="WLS smoothness weight")
-    s.add_argument("--wls-sigma", type=float, default=1.5, help="WLS colour sensitivity")
+    s.add_argument("--wls-lambda", type=float, default=sgbm.wls_lambda, help="WLS smoothness weight")
+    s.add_argument("--wls-sigma", type=float, default=sgbm.wls_sigma, help="WLS colour sensitivity")
     s.add_argument("--no-preview", action="store_true")
     s.set_defaults(func=_cmd_stereo_depth)
 

@@ -41,16 +41,21 @@ def _validator(schema: dict):
     return validators.extend(Draft202012Validator, {"properties": set_defaults})(schema)
 
 
-def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEMA,
-                   preset_dir: Path = PRESETS) -> dict:
-    """Merge the preset under ``user``, validate, fill defaults; errors name ``source`` and
-    the offending key."""
+def with_preset(user: dict, source: str = "config", preset_dir: Path = PRESETS) -> dict:
+    """``user`` merged over its preset (``cpu`` unless it names one)."""
     preset_name = user.get("preset", "cpu")
     preset_path = preset_dir / f"{preset_name}.yaml"
     if not preset_path.is_file():
         known = ", ".join(sorted(p.stem for p in preset_dir.glob("*.yaml")))
         raise Eve3dError(f"{source}: preset {preset_name!r} not found in {preset_dir} (known: {known})")
-    config = deep_merge(yaml.safe_load(preset_path.read_text()) or {}, user)
+    return deep_merge(yaml.safe_load(preset_path.read_text()) or {}, user)
+
+
+def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEMA,
+                   preset_dir: Path = PRESETS) -> dict:
+    """Merge the preset under ``user``, validate, fill defaults; errors name ``source`` and
+    the offending key."""
+    config = with_preset(user, source, preset_dir)
     schema = yaml.safe_load(schema_path.read_text())
     errors = sorted(_validator(schema).iter_errors(config), key=lambda e: list(e.absolute_path))
     if errors:
@@ -92,12 +97,7 @@ def training_config(spec: str | None = None, overrides: list[str] = ()) -> dict:
     (``cpu`` unless the config names one), then ``spec`` (a workflow config file, or an
     inline JSON/YAML mapping as the workflow passes it), then ``SECTION.KEY=VALUE``
     overrides (values parsed as YAML)."""
-    user = load_mapping(spec, "--config") if spec else {}
-    preset_name = user.get("preset", "cpu")
-    preset_path = PRESETS / f"{preset_name}.yaml"
-    if not preset_path.is_file():
-        raise Eve3dError(f"preset {preset_name!r} not found in {PRESETS}")
-    config = deep_merge(yaml.safe_load(preset_path.read_text()) or {}, user)
+    config = with_preset(load_mapping(spec, "--config") if spec else {}, "--config")
     for item in overrides:
         key, sep, value = item.partition("=")
         path = key.split(".")

@@ -1,10 +1,10 @@
 """Adaptive density control: clone, split, prune, opacity reset (3DGS, with AbsGS's split).
 
 Shaped like gsplat's ``DefaultStrategy``: the policy is a dataclass whose fields are the
-documented defaults, and its two hooks, :meth:`Densifier.step_pre_backward` and
-:meth:`Densifier.step_post_backward`, are its only contact with the training loop. The
-row operations (:func:`duplicate`, :func:`split`, :func:`remove`) edit the parameter dict
-and each parameter's Adam state together.
+documented defaults, and its hook :meth:`Densifier.step_post_backward` is its only contact
+with the training loop (the renderer already retains the 2D means' gradient, so no
+pre-backward hook is needed). The row operations (:func:`duplicate`, :func:`split`,
+:func:`remove`) edit the parameter dict and each parameter's Adam state together.
 
 Rules, at every ``refine_every`` steps in [``refine_start``, ``refine_stop``):
 
@@ -56,10 +56,12 @@ def duplicate(params: Params, optimizers: Optimizers, mask: torch.Tensor) -> Non
                   lambda _, s: torch.cat([s, torch.zeros_like(s.index_select(0, sel))]))
 
 
-def remove(params: Params, optimizers: Optimizers, mask: torch.Tensor) -> None:
-    """Delete the Gaussians in ``mask``."""
+def remove(params: Params, optimizers: Optimizers, mask: torch.Tensor, state: dict | None = None) -> None:
+    """Delete the Gaussians in ``mask`` (and their rows of the densification ``state``)."""
     keep = (~mask).nonzero().squeeze(1)
     _replace_rows(params, optimizers, lambda _, t: t.index_select(0, keep), lambda _, s: s.index_select(0, keep))
+    if state is not None:
+        _select_state(state, keep)
 
 
 def split(params: Params, optimizers: Optimizers, mask: torch.Tensor, generator: torch.Generator | None = None,
@@ -116,11 +118,6 @@ class Densifier:
                 "count": torch.zeros(n, device=device), "seen": torch.zeros(n, n_views, dtype=torch.bool, device=device),
                 "birth": torch.zeros(n, dtype=torch.long, device=device)}
 
-    def step_pre_backward(self, out: RenderOutput) -> None:
-        """Keep the 2D means' gradient (the renderer already retains it on CPU)."""
-        if out.means2d.requires_grad:
-            out.means2d.retain_grad()
-
     def step_post_backward(self, params: Params, optimizers: Optimizers, state: dict, step: int, out: RenderOutput,
                            view_index: int, scene_scale: float, generator: torch.Generator | None = None) -> dict:
         """Accumulate this view's statistics, then grow/prune/reset on schedule. Returns
@@ -175,8 +172,7 @@ class Densifier:
         _append_state(state, {k: torch.cat([v, v]) for k, v in grown.items()})
         prune = self.prune_mask(params, state, step, scene_scale)
         n_prune = int(prune.sum())
-        remove(params, optimizers, prune)
-        _select_state(state, (~prune).nonzero().squeeze(1))
+        remove(params, optimizers, prune, state)
         for key in ("grad2d", "absgrad2d", "count"):
             state[key].zero_()
         return {"clone": n_clone, "split": n_split, "prune": n_prune}

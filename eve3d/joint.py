@@ -16,7 +16,7 @@ and ``previews/``.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -111,8 +111,8 @@ def train_joint(scene: Scene, out_dir: Path, settings: JointSettings) -> dict:
     s = settings
     if s.method not in METHODS:
         raise Eve3dError(f"joint: method {s.method!r} unknown; choose one of {', '.join(METHODS)}")
-    if s.method == "3dgs":
-        s.densify.absgrad = False  # 3DGS splits by the plain 2D-mean gradient
+    if s.method == "3dgs":  # 3DGS splits by the plain 2D-mean gradient
+        s = replace(s, densify=replace(s.densify, absgrad=False))
     out_dir = Path(out_dir)
     trainer = Trainer(scene, s, out_dir, s.method)
     points, colors = initial_points(scene, s.init_random_points, np.random.default_rng(s.seed))
@@ -122,8 +122,7 @@ def train_joint(scene: Scene, out_dir: Path, settings: JointSettings) -> dict:
             trainer.add_extra("exposure", torch.eye(3, 4).repeat(len(trainer.views), 1, 1), s.exposure_lr)
         loss = pgsr_terms(trainer, s, select_neighbours(scene, s.neighbours))
     else:
-        def loss(step, view, out):
-            return {"rgb": rgb_loss(out.rgb, view.image, s.ssim_weight)}
+        loss = trainer.photometric_terms
 
     trainer.run(loss)
     depth_kind = "depth" if s.method == "pgsr" else "depth_expected"

@@ -105,14 +105,6 @@ def _project(points: torch.Tensor, cam: CameraTensors) -> tuple[torch.Tensor, to
     return uv, z
 
 
-def pixel_centres(cam: CameraTensors) -> torch.Tensor:
-    """(H, W, 2) pixel-centre coordinates (u + 0.5, v + 0.5)."""
-    opts = dict(dtype=cam.R.dtype, device=cam.R.device)
-    v, u = torch.meshgrid(torch.arange(cam.height, **opts) + 0.5, torch.arange(cam.width, **opts) + 0.5,
-                          indexing="ij")
-    return torch.stack([u, v], -1)
-
-
 def forward_backward_error(depth_ref: torch.Tensor, depth_nbr: torch.Tensor, ref: CameraTensors,
                            nbr: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
     """PGSR's multi-view geometric check. Each reference pixel is back-projected with
@@ -123,11 +115,9 @@ def forward_backward_error(depth_ref: torch.Tensor, depth_nbr: torch.Tensor, ref
     p_ref = depth_to_points(depth_ref, ref)
     uv_n, z_n = _project(p_ref @ R.T + t, nbr)
     d_n = _sample(depth_nbr[..., None], uv_n)[..., 0]
-    rays_n = torch.stack([(uv_n[..., 0] - nbr.cx) / nbr.fx, (uv_n[..., 1] - nbr.cy) / nbr.fy,
-                          torch.ones_like(d_n)], -1)
-    back = (rays_n * d_n[..., None] - t) @ R  # neighbour → reference: Rᵀ (x − t)
+    back = (nbr.rays_at(uv_n) * d_n[..., None] - t) @ R  # neighbour → reference: Rᵀ (x − t)
     uv_r, z_r = _project(back, ref)
-    phi = (uv_r - pixel_centres(ref)).norm(dim=-1)
+    phi = (uv_r - ref.pixel_centres()).norm(dim=-1)
     inside = (uv_n[..., 0] >= 0) & (uv_n[..., 0] < nbr.width) & (uv_n[..., 1] >= 0) & (uv_n[..., 1] < nbr.height)
     defined = (depth_ref > 0) & (z_n > 0) & (d_n > 0) & (z_r > 0) & inside
     return phi, defined

@@ -22,7 +22,6 @@ import torch
 from eve3d.densify import remove
 from eve3d.fileio import atomic_path
 from eve3d.gaussians import GaussianModel
-from eve3d.losses import rgb_loss
 from eve3d.render import render
 from eve3d.scene import Scene
 from eve3d.training import Trainer, TrainSettings, initial_points
@@ -86,9 +85,6 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     points, colors = initial_points(scene, s.init_random_points, rng)
     trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree))
 
-    def loss_terms(step, view, out):
-        return {"rgb": rgb_loss(out.rgb, view.image, s.ssim_weight)}
-
     def events(step: int) -> None:
         if step in s.reinit_at:
             count = s.reinit_points or len(trainer.model)
@@ -102,11 +98,10 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
             drop = torch.ones(len(weight), dtype=torch.bool, device=weight.device)
             drop[order[:keep]] = False
             drop |= weight <= 0
-            remove(trainer.model.params, trainer.optimizers, drop)
-            trainer.densify_state = {k: v[~drop] for k, v in trainer.densify_state.items()}
+            remove(trainer.model.params, trainer.optimizers, drop, trainer.densify_state)
             print(f"\npretrain: step {step}: simplified to {len(trainer.model)} Gaussians", file=sys.stderr)
 
-    trainer.run(loss_terms, events)
+    trainer.run(trainer.photometric_terms, events)
     trainer.model.save_ply(out_dir / "point_cloud.ply")
     metrics = {"held_out": trainer.evaluate(trainer.test_ids), "train": trainer.evaluate(trainer.train_ids),
                "gaussians": len(trainer.model), "iterations": s.iterations, "resolution": s.resolution,

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from eve3d.densify import Densifier
 from eve3d.fileio import atomic_path, read_image, write_image
 from eve3d.gaussians import GaussianModel
-from eve3d.losses import psnr, ssim
+from eve3d.losses import psnr, rgb_loss, ssim
 from eve3d.maps import preview_image
 from eve3d.render import RenderOutput, render
 from eve3d.render.projection import CameraTensors
@@ -219,6 +219,10 @@ class Trainer:
     def sh_degree(self, step: int) -> int:
         return min(self.s.sh_degree, step // max(self.s.sh_degree_interval, 1))
 
+    def photometric_terms(self, step: int, view: View, out: RenderOutput) -> dict[str, torch.Tensor]:
+        """The loss of a photometric-only stage: L_rgb."""
+        return {"rgb": rgb_loss(out.rgb, view.image, self.s.ssim_weight)}
+
     def render(self, view: View | Camera, step: int | None = None, absgrad: bool = False, **kw) -> RenderOutput:
         """Render the current model from a training view (or any camera)."""
         m = self.model
@@ -261,7 +265,6 @@ class Trainer:
                 raise NonFiniteLoss(
                     f"{self.name}: loss term {', '.join(bad) or 'total'} is not finite at iteration {step}; "
                     f"the last good checkpoint is kept in {self.checkpoint_path} (step {self._saved_step()})")
-            densify.step_pre_backward(out)
             loss.backward()
             for opt in [*self.optimizers.values(), *self.extra_optimizers.values()]:
                 opt.step()

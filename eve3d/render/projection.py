@@ -51,13 +51,21 @@ class CameraTensors:
         return torch.tensor([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]],
                             dtype=self.R.dtype, device=self.R.device)
 
-    def rays(self) -> torch.Tensor:
-        """(H, W, 3) camera-space rays ((u+0.5−cx)/fx, (v+0.5−cy)/fy, 1) through pixel centres."""
+    def pixel_centres(self) -> torch.Tensor:
+        """(H, W, 2) pixel-centre coordinates (u + 0.5, v + 0.5)."""
         opts = dict(dtype=self.R.dtype, device=self.R.device)
-        u = (torch.arange(self.width, **opts) + 0.5 - self.cx) / self.fx
-        v = (torch.arange(self.height, **opts) + 0.5 - self.cy) / self.fy
-        vv, uu = torch.meshgrid(v, u, indexing="ij")
-        return torch.stack([uu, vv, torch.ones_like(uu)], dim=-1)
+        v, u = torch.meshgrid(torch.arange(self.height, **opts) + 0.5, torch.arange(self.width, **opts) + 0.5,
+                              indexing="ij")
+        return torch.stack([u, v], -1)
+
+    def rays_at(self, uv: torch.Tensor) -> torch.Tensor:
+        """(..., 3) camera-space rays ((u−cx)/fx, (v−cy)/fy, 1) through pixel coordinates ``uv`` (..., 2)."""
+        return torch.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy,
+                            torch.ones_like(uv[..., 0])], dim=-1)
+
+    def rays(self) -> torch.Tensor:
+        """(H, W, 3) camera-space rays through the pixel centres."""
+        return self.rays_at(self.pixel_centres())
 
 
 def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
@@ -116,9 +124,9 @@ def project(means_c: torch.Tensor, rotmats: torch.Tensor, scales: torch.Tensor, 
     b = cov2d[:, 0, 1]
     c = cov2d[:, 1, 1] + EPS2D
     det = a * c - b * b
-    det_raw = (a - EPS2D) * (c - EPS2D) - b * b
-    compensation = torch.sqrt(torch.clamp(det_raw / torch.where(det > 0, det, torch.ones_like(det)), min=0))
     det_safe = torch.where(det > 0, det, torch.ones_like(det))
+    det_raw = (a - EPS2D) * (c - EPS2D) - b * b
+    compensation = torch.sqrt(torch.clamp(det_raw / det_safe, min=0))
     conics = torch.stack([c / det_safe, -b / det_safe, a / det_safe], dim=-1)
     means2d = torch.stack([cam.fx * x / z_safe + cam.cx, cam.fy * y / z_safe + cam.cy], dim=-1)
 

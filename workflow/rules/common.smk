@@ -121,9 +121,10 @@ def stereo_depth_args(wildcards, input):
             + (f" --wls --wls-lambda {s['wls_lambda']} --wls-sigma {s['wls_sigma']}" if s["wls"] else ""))
 
 
-def training_config():
-    """What a training job needs of the config, inline (a change reruns the job)."""
-    keys = ("preset", "train", "pretrain", "joint")
+def training_config(stage):
+    """What a training stage's job needs of the config, inline: a change reruns that stage
+    only (a joint setting does not rerun pretrain and the stereo stages after it)."""
+    keys = ("preset", "train", stage)
     return shlex.quote(json.dumps({k: config[k] for k in keys}, sort_keys=True))
 
 

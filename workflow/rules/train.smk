@@ -9,7 +9,7 @@ rule pretrain:
         model=f"{RESULTS}/{{scene}}/pretrain/point_cloud.ply",
         metrics=f"{RESULTS}/{{scene}}/pretrain/metrics.json",
     params:
-        config=lambda wc: training_config(),
+        config=lambda wc: training_config("pretrain"),
     log:
         f"{RESULTS}/logs/{{scene}}/pretrain.log",
     threads: workflow.cores
@@ -29,7 +29,7 @@ rule joint:
     wildcard_constraints:
         method="|".join(TRAINED),
     params:
-        config=lambda wc: training_config(),
+        config=lambda wc: training_config("joint"),
     log:
         f"{RESULTS}/logs/{{scene}}/joint_{{method}}.log",
     threads: workflow.cores
