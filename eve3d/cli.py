@@ -115,22 +115,24 @@ def _cmd_mesh(a: argparse.Namespace) -> None:
 
 
 def _cmd_evaluate(a: argparse.Namespace) -> None:
-    from eve3d.evaluate import TAU_FRACTION, evaluate_dtu, evaluate_synthetic
+    from eve3d.evaluate import EvalInputs, EvalSettings, protocol_for
     from eve3d.fileio import atomic_path
     from eve3d.io import load_scene
 
-    scene = load_scene(a.scene, check_images=False) if a.scene else None
-    if a.protocol == "dtu":
-        if scene is None or not (a.obs_mask and a.plane):
-            raise Eve3dError("the DTU protocol needs --scene (the DTU scan folder), --obs-mask and --plane")
-        metrics = evaluate_dtu(Path(a.mesh), scene, Path(a.gt), Path(a.obs_mask), Path(a.plane), density=a.dtu_density)
-    else:
-        tau = a.tau
-        if tau is None and scene is not None:
-            tau = a.tau_fraction * scene.radius
-        metrics = evaluate_synthetic(Path(a.mesh), Path(a.gt), scene, tau)
-        how = "given" if a.tau else (f"{a.tau_fraction:g} × scene radius" if scene else f"{TAU_FRACTION:g} × GT half-diagonal")
-        print(f"tau = {metrics['tau']:.5g} ({how})")
+    scene = load_scene(a.scene, check_images=False)
+    protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol")
+    reconstruction = a.model if protocol.scores == "model" else a.mesh
+    if reconstruction is None:
+        flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
+        raise Eve3dError(f"the {protocol.name} protocol scores a {protocol.scores}: give {flag}")
+    settings = EvalSettings(tau=a.tau, tau_fraction=a.tau_fraction, min_views=a.min_views, samples=a.samples,
+                            dtu_density=a.dtu_density, dtu_max_dist=a.dtu_max_dist)
+    optional = lambda v: Path(v) if v else None  # noqa: E731
+    inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
+                        plane=optional(a.plane), settings=settings)
+    metrics = protocol.run(inputs)
+    if "tau" in metrics:
+        print(f"tau = {metrics['tau']:.5g} ({metrics['tau_rule']})")
     metrics.update({"scene": a.scene_name, "method": a.method} if a.scene_name else {})
     with atomic_path(Path(a.out)) as tmp:
         tmp.write_text(json.dumps(metrics, indent=2))
@@ -138,7 +140,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
 
 
 SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "accuracy", "completeness", "chamfer",
-                   "precision", "recall", "fscore")
+                   "precision", "recall", "fscore", "psnr", "ssim")
 
 
 def _cmd_bench(a: argparse.Namespace) -> None:
@@ -168,6 +170,15 @@ def _cmd_bench_stereo(a: argparse.Namespace) -> None:
     moto = [bench.stereo_motorcycle(), bench.stereo_motorcycle(wls=True)]
     print(json.dumps({"motorcycle": moto, "priors": priors}, indent=2) if a.json
           else bench.format_stereo_tables(moto, priors))
+
+
+def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
+    from eve3d import bench
+
+    if a.meshes and not (a.scene and a.gt):
+        raise Eve3dError("--meshes needs --scene (the cameras) and --gt (the GT mesh)")
+    rows = bench.bench_evaluate([(str(m), str(m)) for m in a.meshes], a.scene, a.gt)
+    print(json.dumps(rows, indent=2) if a.json else bench.format_evaluate_table(rows))
 
 
 def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:
@@ -222,12 +233,13 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     from eve3d.stereo import SgbmSettings
+    from eve3d.synth import KINDS
 
     p = argparse.ArgumentParser(prog="eve3d", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("synth", help="generate a synthetic scene with exact ground truth")
-    s.add_argument("kind", choices=["object", "room"])
+    s.add_argument("kind", choices=list(KINDS))
     s.add_argument("out", help="output dataset folder (replaced atomically)")
     s.add_argument("--views", type=int, default=32)
     s.add_argument("--width", type=int, default=320)
@@ -304,17 +316,28 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--min-cluster-fraction", type=float, default=0.01)
     s.set_defaults(func=_cmd_mesh)
 
-    s = sub.add_parser("evaluate", help="mesh vs ground truth → metrics.json")
-    s.add_argument("--mesh", required=True)
-    s.add_argument("--gt", required=True, help="GT mesh (synthetic) or DTU stl point cloud")
-    s.add_argument("--out", required=True)
-    s.add_argument("--scene", help="dataset folder: scene radius for τ; cameras and masks for DTU")
-    s.add_argument("--protocol", choices=["synthetic", "dtu"], default="synthetic")
-    s.add_argument("--tau", type=float)
-    s.add_argument("--tau-fraction", type=float, default=0.005)
-    s.add_argument("--obs-mask", help="DTU ObsMask{scan}_10.mat")
-    s.add_argument("--plane", help="DTU Plane{scan}.mat")
-    s.add_argument("--dtu-density", type=float, default=0.2)
+    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS, EvalSettings
+
+    defaults = EvalSettings()
+    s = sub.add_parser("evaluate", help="a reconstruction vs ground truth → metrics.json",
+                       description="Protocols: " + "; ".join(f"{p.name}: {p.summary}" for p in PROTOCOLS.values()))
+    s.add_argument("--scene", required=True, help="dataset folder: cameras (visibility, alignment, masks, views)")
+    s.add_argument("--mesh", help="the reconstructed mesh (protocols synthetic, dtu, tnt)")
+    s.add_argument("--model", help="a trained point_cloud.ply (protocol nvs)")
+    s.add_argument("--out", required=True, help="metrics.json (tnt also writes precision.ply and recall.ply beside it)")
+    s.add_argument("--protocol", choices=list(PROTOCOLS),
+                   help="default by dataset format: " + ", ".join(f"{k} → {v}" for k, v in DEFAULT_PROTOCOL.items()))
+    s.add_argument("--gt", help="synthetic: the GT mesh; dtu: the stl…_total.ply point cloud")
+    s.add_argument("--tau", type=float, help="distance threshold; default: the protocol's rule")
+    s.add_argument("--tau-fraction", type=float, default=defaults.tau_fraction,
+                   help="synthetic: τ = this × the visible GT's bounding-box diagonal")
+    s.add_argument("--samples", type=int, default=defaults.samples, help="synthetic: surface samples per mesh")
+    s.add_argument("--min-views", type=int, default=defaults.min_views,
+                   help="synthetic: cameras that must see a GT point for it to count as visible")
+    s.add_argument("--obs-mask", help="dtu: ObsMask{scan}_10.mat")
+    s.add_argument("--plane", help="dtu: Plane{scan}.mat")
+    s.add_argument("--dtu-density", type=float, default=defaults.dtu_density)
+    s.add_argument("--dtu-max-dist", type=float, default=defaults.dtu_max_dist)
     s.add_argument("--scene-name")
     s.add_argument("--method")
     s.set_defaults(func=_cmd_evaluate)
@@ -342,6 +365,12 @@ def _add_bench_parser(sub) -> None:
                     help="prior folders (results/{scene}/priors/{backend}) to score against the oracle folder beside them")
     st.add_argument("--json", action="store_true", help="machine-readable output")
     st.set_defaults(func=_cmd_bench_stereo)
+    ev = what.add_parser("evaluate", help="time of the synthetic protocol on meshes with floaters (and on given meshes)")
+    ev.add_argument("--meshes", nargs="*", default=[], metavar="MESH", help="further meshes to time, e.g. a demo's")
+    ev.add_argument("--scene", help="dataset whose cameras the given meshes are scored with")
+    ev.add_argument("--gt", help="GT mesh of the given meshes")
+    ev.add_argument("--json", action="store_true", help="machine-readable output")
+    ev.set_defaults(func=_cmd_bench_evaluate)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -61,10 +61,36 @@ def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEM
     if errors:
         lines = [f"{'.'.join(map(str, e.absolute_path)) or '(top level)'}: {e.message}" for e in errors]
         raise Eve3dError(f"{source}: invalid configuration:\n  " + "\n  ".join(lines))
+    from eve3d.synth import KINDS
+
     for name, scene in config["scenes"].items():
         if "synthetic" not in scene and "path" not in scene:
             raise Eve3dError(f"{source}: scenes.{name}: give either 'synthetic' (generate it) or 'path' (a dataset)")
+        kind = scene.get("synthetic", {}).get("kind")
+        if kind is not None and kind not in KINDS:
+            raise Eve3dError(f"{source}: scenes.{name}.synthetic.kind: {kind!r} is not one of {', '.join(KINDS)}")
     return config
+
+
+def scene_protocol(name: str, scene: dict):
+    """The evaluation protocol (``eve3d.evaluate.Protocol``) of the workflow scene ``name``:
+    its ``protocol`` key, else the default of its dataset format; an error names the key
+    when the protocol is unknown or the scene lacks what it needs."""
+    from eve3d.evaluate import protocol_for
+    from eve3d.io.loader import dataset_format
+
+    fmt = "colmap" if "synthetic" in scene else dataset_format(Path(scene["path"]))
+    protocol = protocol_for(scene.get("protocol"), fmt, f"scenes.{name}.protocol")
+    where = f"scenes.{name} (protocol {protocol.name})"
+    if protocol.name == "synthetic" and "synthetic" not in scene and "gt_mesh" not in scene:
+        raise Eve3dError(f"{where}: give gt_mesh, a GT mesh in the dataset's frame (or protocol: nvs to score "
+                         f"held-out views instead)")
+    if protocol.name == "dtu" and "dtu" not in scene:
+        raise Eve3dError(f"{where}: give dtu: {{stl, obs_mask, plane}}, the DTU ground-truth files")
+    if protocol.name == "tnt" and fmt != "tnt":
+        raise Eve3dError(f"{where}: {scene.get('path')} is not a Tanks and Temples dataset ({{Scene}}_trans.txt, "
+                         f"{{Scene}}.json, {{Scene}}.ply and {{Scene}}_COLMAP_SfM.log beside images/)")
+    return protocol
 
 
 def load_config(path: str | Path) -> dict:

@@ -66,6 +66,15 @@ class MeshRaycaster:
             hits = Hits(hits.depth[0], hits.normal[0], hits.geometry[0], hits.points[0], hits.triangle[0])
         return hits
 
+    def hit_distances(self, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Ray parameter t of the first hit of each ray origin + t·direction (inf on a miss):
+        the light query when only occlusion matters."""
+        import open3d as o3d
+
+        rays = np.empty((len(directions), 6), dtype=np.float32)
+        rays[:, :3], rays[:, 3:] = origin, directions
+        return self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+
     def cast_uv(self, cam: Camera, uv: np.ndarray) -> Hits:
         """Rays through continuous pixel coordinates ``uv`` (...,2) (pixel centres at +0.5)."""
         import open3d as o3d
@@ -89,3 +98,26 @@ class MeshRaycaster:
         shape = uv.shape[:-1]
         return Hits(depth.reshape(shape), np.where(hit[:, None], normal, 0).reshape(shape + (3,)),
                     geom.reshape(shape), points.reshape(shape + (3,)), triangle.reshape(shape))
+
+
+def seen_by(caster: MeshRaycaster, cams: list[Camera], points: np.ndarray, stop_at: int | None = None,
+            rel_tol: float = 1e-4) -> np.ndarray:
+    """(N, C) bool: camera c sees point i, i.e. the point lies in front of it, inside its
+    image, and the ray from its centre to the point meets no surface more than ``rel_tol``
+    of the way before it (a ray that meets nothing at all passed a triangle edge: seen).
+    Points already seen by ``stop_at`` cameras are not tested against the rest (cheaper
+    when only "seen at all" matters)."""
+    points = np.asarray(points, dtype=np.float64)
+    seen = np.zeros((len(points), len(cams)), dtype=bool)
+    count = np.zeros(len(points), dtype=np.int64)
+    for ci, cam in enumerate(cams):
+        todo = np.arange(len(points)) if stop_at is None else np.flatnonzero(count < stop_at)
+        uv, z = cam.project(points[todo])
+        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        todo = todo[inside]
+        # Rays from the centre with the point at t = 1.
+        t = caster.hit_distances(cam.center, points[todo] - cam.center)
+        ok = t >= 1 - rel_tol
+        seen[todo[ok], ci] = True
+        count[todo[ok]] += 1
+    return seen

@@ -5,16 +5,21 @@ colours do not depend on the view, and rendered by open3d ray casting on the CPU
 mixes the cases stereo priors exist for: a textureless region (``flat``) and a repetitive
 pattern (``tiles``), beside value-noise textures that SfM can match.
 
+Kinds (``KINDS``): ``object`` (a DTU-like object on a table, cameras around and above it),
+``room`` (a Meetingroom-like room, cameras on a loop inside it), ``vase`` (a hollow vase and a
+box on the ground: surfaces no camera sees, inside the vase and under the box) and
+``inside-room`` (the room seen from cameras clustered near its centre, looking outwards).
+
 Output, laid out the way a user brings data:
 ``images/*.png``, ``sparse/0/`` (COLMAP model with the exact poses and visible surface points;
 under ``gt/sparse/0/`` instead with ``images_only``), ``masks/`` (object scenes), ``gt/mesh.ply``
-and ``eve3d_scene.json``. The GT mesh holds the triangles that some pixel ray of some view
-hits: the observable surface, so that completeness is not charged for the underside of the
-table, and so that the oracle depth of the GT mesh is the depth the images were rendered with.
+(the whole scene, hidden surfaces included: the evaluator finds what the cameras see) and
+``eve3d_scene.json``.
 """
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,11 +29,10 @@ from tqdm import tqdm
 from eve3d.fileio import atomic_dir, write_image
 from eve3d.io.colmap import write_colmap
 from eve3d.io.loader import METADATA
-from eve3d.raycast import MeshRaycaster
+from eve3d.raycast import MeshRaycaster, seen_by
 from eve3d.scene import Camera, Scene
 from eve3d.surface import sample_surface
 
-KINDS = ("object", "room")
 LIGHT = np.array([0.3, -0.5, 1.0]) / np.linalg.norm([0.3, -0.5, 1.0])
 
 
@@ -160,14 +164,44 @@ def room_parts() -> list[Part]:
     ]
 
 
-def refine(mesh, max_edge: float):
-    """Midpoint-subdivide until no edge is longer than ``max_edge``, so that the observed
-    part of a large face (the table under an object) can be told from the hidden part."""
-    while True:
-        tri = np.asarray(mesh.vertices)[np.asarray(mesh.triangles)]
-        if np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max() <= max_edge:
-            return mesh
-        mesh = mesh.subdivide_midpoint(1)
+def _lathe(profile: list[tuple[float, float]], segments: int = 64):
+    """A surface of revolution about the z axis from a closed (r, z) profile whose first
+    and last points lie on the axis (bottom and inner bottom)."""
+    import open3d as o3d
+
+    prof = np.asarray(profile, dtype=np.float64)
+    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    verts = np.stack([prof[:, None, 0] * np.cos(a), prof[:, None, 0] * np.sin(a),
+                      np.broadcast_to(prof[:, None, 1], (len(prof), segments))], -1).reshape(-1, 3)
+    tris = []
+    for i in range(len(prof) - 1):
+        for j in range(segments):
+            v00, v01 = i * segments + j, i * segments + (j + 1) % segments
+            v10, v11 = v00 + segments, v01 + segments
+            tris += [[v00, v01, v11], [v00, v11, v10]]
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), o3d.utility.Vector3iVector(np.array(tris)))
+    mesh.remove_duplicated_vertices()  # the poles
+    mesh.remove_degenerate_triangles()
+    return mesh
+
+
+def vase_parts() -> list[Part]:
+    """A hollow vase (walls 6 cm thick, open at the top) and a box standing on a ground
+    plane: the inside of the vase is partly visible, the box's underside and the vase's
+    bottom never are."""
+    height, wall = 0.75, 0.06
+    z = np.linspace(0.0, height, 16)
+    outer = 0.2 + 0.14 * np.sin(np.pi * z / height * 0.9) - 0.04 * (z / height) ** 2
+    profile = [(0.0, 0.0)] + [(r, h) for r, h in zip(outer, z)]
+    profile += [(r - wall, h) for r, h in zip(outer[::-1], z[::-1]) if h >= wall] + [(0.0, wall)]
+    vase = _lathe(profile)
+    vase.translate([-0.3, 0.1, 0.0])
+    return [
+        Part(_box((3.0, 3.0, 0.1), (0, 0, -0.05)), Material("tiles", (0.8, 0.78, 0.72), (0.3, 0.32, 0.4), scale=0.2)),
+        Part(vase, Material("noise", (0.75, 0.45, 0.25), (0.25, 0.15, 0.1), scale=8.0), True),
+        Part(_box((0.4, 0.5, 0.35), (0.4, -0.25, 0.175)), Material("noise", (0.3, 0.5, 0.7), (0.9, 0.9, 0.8), scale=9.0),
+             True),
+    ]
 
 
 def _look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -212,6 +246,41 @@ def room_cameras(n: int, width: int, height: int, rng: np.random.Generator, arc:
     return cams
 
 
+def inside_cameras(n: int, width: int, height: int, rng: np.random.Generator, arc: float = 360.0) -> list[Camera]:
+    """Cameras clustered within 25 cm of a point near the room's centre, each looking
+    outwards in its own direction (a capture from one spot: the camera radius is far
+    smaller than the room)."""
+    f = 0.6 * width
+    K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
+    cams = []
+    for i in range(n):
+        yaw = np.radians(arc) * i / n + rng.uniform(-0.1, 0.1)
+        center = np.array([-0.6, -0.4, 1.55]) + rng.uniform(-0.25, 0.25, 3) * [1, 1, 0.4]
+        pitch = -0.45 + 0.35 * np.sin(5 * yaw) + rng.uniform(-0.05, 0.05)
+        target = center + np.array([np.cos(yaw), np.sin(yaw), pitch])
+        R, t = _look_at(center, target, np.array([0, 0, 1.0]))
+        cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
+    return cams
+
+
+@dataclass(frozen=True)
+class Kind:
+    """A synthetic scene: its parts, its camera layout and the scene kind it is read as."""
+
+    parts: Callable[[], list[Part]]
+    cameras: Callable[..., list[Camera]]
+    scene_kind: str
+    """``object`` (masks are written; object radius 1) or ``scene``."""
+
+
+KINDS: dict[str, Kind] = {
+    "object": Kind(object_parts, object_cameras, "object"),
+    "room": Kind(room_parts, room_cameras, "scene"),
+    "vase": Kind(vase_parts, object_cameras, "object"),
+    "inside-room": Kind(room_parts, inside_cameras, "scene"),
+}
+
+
 def shade(parts: list[Part], hits, seed: int) -> np.ndarray:
     """Lambertian colour under a fixed light (view independent), background black."""
     rgb = np.zeros(hits.depth.shape + (3,))
@@ -227,15 +296,9 @@ def surface_points(mesh, cams: list[Camera], caster: MeshRaycaster, count: int,
                    rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray]]:
     """A stand-in for SfM points: surface samples seen (unoccluded) by at least two views."""
     pts = sample_surface(np.asarray(mesh.vertices), np.asarray(mesh.triangles), 4 * count, rng)
-    views: list[list[int]] = [[] for _ in range(len(pts))]
-    for ci, cam in enumerate(cams):
-        uv, z = cam.project(pts)
-        inside = np.flatnonzero((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height))
-        seen = caster.cast_uv(cam, uv[inside]).depth
-        for i in inside[np.abs(seen - z[inside]) < 1e-4 * z[inside]]:
-            views[i].append(ci)
-    keep = [i for i, v in enumerate(views) if len(v) >= 2][:count]
-    return pts[keep], [np.array(views[i]) for i in keep]
+    seen = seen_by(caster, cams, pts)
+    keep = np.flatnonzero(seen.sum(axis=1) >= 2)[:count]
+    return pts[keep], [np.flatnonzero(seen[i]) for i in keep]
 
 
 def point_colors(parts: list[Part], caster: MeshRaycaster, cams: list[Camera], pts: np.ndarray,
@@ -260,45 +323,33 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
     if kind not in KINDS:
         raise ValueError(f"unknown synthetic scene kind {kind!r}; choose one of {', '.join(KINDS)}")
     rng = np.random.default_rng(seed)
-    parts = object_parts() if kind == "object" else room_parts()
-    for part in parts:
-        part.mesh = refine(part.mesh, 0.03 if kind == "object" else 0.08)
-    cams = (object_cameras if kind == "object" else room_cameras)(views, width, height, rng, arc)
+    spec = KINDS[kind]
+    parts = spec.parts()
+    cams = spec.cameras(views, width, height, rng, arc)
     caster = MeshRaycaster([p.mesh for p in parts])
     grid = (np.arange(supersample) + 0.5) / supersample
     offsets = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
-    seen = [set() for _ in parts]
     with atomic_dir(out) as tmp:
         for cam in tqdm(cams, desc=f"synth {kind}", unit="view"):
             hits = caster.cast(cam, offsets)
-            for k in range(len(parts)):
-                seen[k].update(np.unique(hits.triangle[hits.geometry == k]).tolist())
             rgb = shade(parts, hits, seed).mean(axis=0)
             write_image(tmp / "images" / cam.name, np.clip(rgb * 255 + 0.5, 0, 255).astype(np.uint8))
-            if kind == "object":
-                centre = caster.cast(cam)
-                for k in range(len(parts)):
-                    seen[k].update(np.unique(centre.triangle[centre.geometry == k]).tolist())
-                fg = np.isin(centre.geometry, [k for k, p in enumerate(parts) if p.foreground])
+            if spec.scene_kind == "object":
+                fg = np.isin(caster.cast(cam).geometry, [k for k, p in enumerate(parts) if p.foreground])
                 write_image(tmp / "masks" / cam.name, (fg * 255).astype(np.uint8))
         mesh = o3d.geometry.TriangleMesh()
-        for part, tris in zip(parts, seen):
-            observed = o3d.geometry.TriangleMesh(part.mesh)
-            unseen = np.ones(len(observed.triangles), dtype=bool)
-            unseen[list(tris)] = False
-            observed.remove_triangles_by_mask(unseen)
-            observed.remove_unreferenced_vertices()
-            mesh += observed
+        for part in parts:
+            mesh += part.mesh
         pts, pviews = surface_points(mesh, cams, caster, points, rng)
         colors = point_colors(parts, caster, cams, pts, pviews, seed)
         scene = Scene(root=out, cameras=cams, points=pts, point_colors=colors, point_views=pviews)
         write_colmap(scene, tmp / ("gt/sparse/0" if images_only else "sparse/0"))
         (tmp / "gt").mkdir(exist_ok=True)
         o3d.io.write_triangle_mesh(str(tmp / "gt" / "mesh.ply"), mesh)
-        meta = {"kind": "object" if kind == "object" else "scene", "gt_mesh": "gt/mesh.ply",
+        meta = {"kind": spec.scene_kind, "gt_mesh": "gt/mesh.ply",
                 "generator": {"kind": kind, "views": views, "width": width, "height": height, "seed": seed,
                               "arc": arc}}
-        if kind == "object":
+        if spec.scene_kind == "object":
             meta["object_radius"] = 1.0
         (tmp / METADATA).write_text(json.dumps(meta, indent=2))
     return out

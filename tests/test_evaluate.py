@@ -1,36 +1,181 @@
 """Evaluation protocols against brute-force references and known answers."""
+import json
+
 import numpy as np
 import pytest
 from scipy.io import savemat
 
-from eve3d.evaluate import cloud_metrics, evaluate_dtu, evaluate_synthetic, read_mesh
+from eve3d.evaluate import PROTOCOLS, EvalInputs, EvalSettings
+from eve3d.evaluate.common import distance_metrics, mesh_distances, read_mesh
+from eve3d.evaluate.dtu import cull_by_masks
+from eve3d.evaluate.synthetic import visible_surface_samples
 from eve3d.io import load_scene
-from eve3d.surface import sample_surface
+from eve3d.raycast import MeshRaycaster, seen_by
+from eve3d.scene import Camera, Eve3dError, Scene
+from eve3d.synth import object_cameras
+from tests.conftest import run_cli
 from tests.test_scene_io import dtu_scale_mat, write_dtu_layout
 
 
-def brute_force_metrics(recon, gt, tau):
-    d = np.linalg.norm(recon[:, None] - gt[None], axis=-1)
-    d_rg, d_gr = d.min(1), d.min(0)
-    p, r = np.mean(d_rg < tau), np.mean(d_gr < tau)
-    return {"accuracy": d_rg.mean(), "completeness": d_gr.mean(), "chamfer": (d_rg.mean() + d_gr.mean()) / 2,
-            "precision": p, "recall": r, "fscore": 2 * p * r / (p + r)}
+def point_triangle_distance(p, a, b, c):
+    """Brute-force reference: the distance from p (N,3) to triangle abc, by projecting onto
+    the plane when the foot lies inside, else the nearest of the three edges."""
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n)
+    foot = p - ((p - a) @ n)[:, None] * n
+    inside = np.ones(len(p), dtype=bool)
+    for u, v in ((a, b), (b, c), (c, a)):
+        inside &= np.cross(v - u, foot - u) @ n >= 0
+    best = np.where(inside, np.abs((p - a) @ n), np.inf)
+    for u, v in ((a, b), (b, c), (c, a)):
+        t = np.clip((p - u) @ (v - u) / ((v - u) @ (v - u)), 0, 1)
+        best = np.minimum(best, np.linalg.norm(p - (u + t[:, None] * (v - u)), axis=1))
+    return best
 
 
-def test_cloud_metrics_match_brute_force():
+def test_mesh_distances_match_brute_force_point_to_triangle():
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh.create_torus(0.5, 0.2, radial_resolution=12, tubular_resolution=8)
     rng = np.random.default_rng(0)
-    for n, m in [(500, 700), (1000, 300)]:
-        recon, gt = rng.random((n, 3)), rng.random((m, 3)) + 0.05
-        ours, ref = cloud_metrics(recon, gt, 0.08), brute_force_metrics(recon, gt, 0.08)
-        for key in ref:
-            assert ours[key] == pytest.approx(ref[key], abs=1e-6), key
+    pts = rng.uniform(-1, 1, (400, 3))
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    ref = np.min([point_triangle_distance(pts, *v[tri]) for tri in f], axis=0)
+    assert np.allclose(mesh_distances(mesh, pts), ref, atol=2e-6)
 
 
-def test_mesh_against_itself_scores_perfectly(object_scene):
-    m = evaluate_synthetic(object_scene.gt_mesh, object_scene.gt_mesh, object_scene)
-    assert m["precision"] == 1.0 and m["recall"] == 1.0 and m["fscore"] == 1.0
-    assert m["chamfer"] < m["tau"] / 3
-    assert m["tau"] == pytest.approx(0.005 * object_scene.radius)
+def test_distance_metrics_formulas():
+    m = distance_metrics(np.array([0.1, 0.3, 0.5, 0.7]), np.array([0.1, 0.2]), tau=0.4)
+    assert m["precision"] == 0.5 and m["recall"] == 1.0 and m["fscore"] == pytest.approx(2 / 3)
+    assert m["accuracy"] == pytest.approx(0.4) and m["chamfer"] == pytest.approx(0.275)
+    empty = distance_metrics(np.zeros(0), np.array([0.1]), tau=0.4)
+    assert empty["precision"] == 0 and empty["accuracy"] is None and empty["fscore"] == 0
+
+
+def sphere_and_ground(delta: float = 0.0):
+    """A sphere floating above a ground plate, every surface moved along its normal by
+    ``delta`` (the sphere scaled about its centre, the plate lifted)."""
+    import open3d as o3d
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(0.4, resolution=80)
+    sphere.scale((0.4 + delta) / 0.4, center=np.zeros(3))
+    sphere.translate([0.1, -0.2, 0.7])
+    plate = o3d.geometry.TriangleMesh()
+    plate.vertices = o3d.utility.Vector3dVector(np.array([[-1.2, -1.2, delta], [1.2, -1.2, delta],
+                                                         [1.2, 1.2, delta], [-1.2, 1.2, delta]]))
+    plate.triangles = o3d.utility.Vector3iVector(np.array([[0, 1, 2], [0, 2, 3]]))
+    return sphere + plate
+
+
+def test_mesh_displaced_by_delta_scores_delta(tmp_path):
+    """Accuracy and completeness of a copy of the GT moved along its normals by δ equal δ;
+    precision and recall switch from 0 to 1 as τ passes δ."""
+    import open3d as o3d
+
+    delta = 0.01
+    o3d.io.write_triangle_mesh(str(tmp_path / "gt.ply"), sphere_and_ground())
+    o3d.io.write_triangle_mesh(str(tmp_path / "moved.ply"), sphere_and_ground(delta))
+    scene = Scene(root=tmp_path, cameras=object_cameras(24, 160, 120, np.random.default_rng(0)))
+    protocol = PROTOCOLS["synthetic"]
+
+    def score(**settings):
+        return protocol.run(EvalInputs(scene, tmp_path / "moved.ply", tmp_path / "m.json", gt=tmp_path / "gt.ply",
+                                       settings=EvalSettings(samples=200_000, **settings)))
+
+    m = score()
+    assert m["accuracy"] == pytest.approx(delta, rel=0.05) and m["completeness"] == pytest.approx(delta, rel=0.05)
+    # The bottom of the sphere faces the plate, out of every camera's sight.
+    assert 0.9 < m["visible_gt_fraction"] < 0.99
+    assert score(tau=1.5 * delta)["fscore"] > 0.99 and score(tau=0.5 * delta)["fscore"] < 0.01
+    assert m["tau_rule"].startswith("0.0025 x visible-GT bounding-box diagonal")
+
+
+def test_synthetic_protocol_ignores_unseen_gt_and_crops_far_recon(tmp_path):
+    """GT surface no camera sees (a box buried in the plate, a plate far behind the
+    cameras) changes neither score; a reconstruction fragment outside the visible GT's box
+    is cropped and reported."""
+    import open3d as o3d
+
+    gt = sphere_and_ground()
+    hidden = o3d.geometry.TriangleMesh.create_box(0.3, 0.3, 0.3).translate([0.5, 0.5, -0.4])
+    far = o3d.geometry.TriangleMesh.create_box(0.5, 0.5, 0.5).translate([0, 0, 30])
+    o3d.io.write_triangle_mesh(str(tmp_path / "gt.ply"), gt)
+    o3d.io.write_triangle_mesh(str(tmp_path / "gt_hidden.ply"), gt + hidden)
+    o3d.io.write_triangle_mesh(str(tmp_path / "recon_far.ply"), gt + far)
+    scene = Scene(root=tmp_path, cameras=object_cameras(24, 160, 120, np.random.default_rng(0)))
+    run = lambda recon, gt_name: PROTOCOLS["synthetic"].run(EvalInputs(  # noqa: E731
+        scene, tmp_path / recon, tmp_path / "m.json", gt=tmp_path / gt_name, settings=EvalSettings(samples=100_000)))
+    with_hidden = run("gt.ply", "gt_hidden.ply")
+    assert with_hidden["recall"] == 1.0 and with_hidden["precision"] == 1.0
+    far_recon = run("recon_far.ply", "gt.ply")
+    assert far_recon["precision"] == 1.0 and far_recon["crop"]["recon_samples_left_out"] > 0
+
+
+def test_evaluate_cli_writes_tau_and_its_rule(object_dataset, tmp_path):
+    out = tmp_path / "metrics.json"
+    r = run_cli("evaluate", "--mesh", object_dataset / "gt/mesh.ply", "--gt", object_dataset / "gt/mesh.ply",
+                "--scene", object_dataset, "--out", out, "--samples", "100000")
+    assert r.returncode == 0, r.stderr
+    m = json.loads(out.read_text())
+    assert m["protocol"] == "synthetic" and m["fscore"] == 1.0 and m["chamfer"] < 1e-5
+    assert "visible-GT bounding-box diagonal" in m["tau_rule"] and f"tau = {m['tau']:.5g}" in r.stdout
+    r = run_cli("evaluate", "--mesh", object_dataset / "gt/mesh.ply", "--scene", object_dataset, "--out", out,
+                "--protocol", "dtu")
+    assert r.returncode == 2 and "the dtu protocol needs gt, obs_mask, plane" in r.stderr
+    r = run_cli("evaluate", "--mesh", object_dataset / "gt/mesh.ply", "--gt", object_dataset / "gt/mesh.ply",
+                "--scene", object_dataset, "--out", out, "--tau", "-1")
+    assert r.returncode == 2 and "evaluate.tau: -1" in r.stderr
+
+
+def test_dtu_culling_removes_exactly_the_vertices_outside_the_dilated_masks(tmp_path):
+    """Two cameras, each with a one-pixel mask. A vertex survives when, in every image it
+    falls inside, its pixel lies within the 24 px disk around that camera's mask pixel."""
+    import open3d as o3d
+
+    from eve3d.fileio import write_image
+
+    w, h = 200, 150
+    K = np.array([[100.0, 0, w / 2], [0, 100.0, h / 2], [0, 0, 1]])
+    cams, marks = [], [(60, 50), (140, 90)]
+    for i, (centre, (mx, my)) in enumerate(zip(([0, 0, -5.0], [0.5, 0, -5.0]), marks)):
+        mask = np.zeros((h, w, 3), np.uint8)
+        mask[my, mx] = 255
+        write_image(tmp_path / f"mask{i}.png", mask)
+        cams.append(Camera(f"{i}.png", w, h, K, np.eye(3), -np.array(centre), mask_path=tmp_path / f"mask{i}.png"))
+    rng = np.random.default_rng(0)
+    # Vertices on the z = 0 plane, projecting to pixel centres of camera 0 (camera 1's pixel
+    # grid is offset by a whole number of pixels), plus some behind the cameras.
+    pix = np.stack([rng.integers(-30, w + 30, 3000), rng.integers(-30, h + 30, 3000)], 1) + 0.5
+    v = np.concatenate([np.c_[(pix - K[:2, 2]) / 100.0 * 5.0, np.zeros(len(pix))],
+                        rng.uniform(-1, 1, (50, 3)) * [1, 1, 0] + [0, 0, -9]])
+    tris = np.arange(len(v) - len(v) % 3).reshape(-1, 3)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(tris))
+    expected = np.ones(len(v), dtype=bool)
+    for cam, (mx, my) in zip(cams, marks):
+        uv, z = cam.project(v)
+        px = np.floor(uv)
+        inside = (z > 0) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        near = np.hypot(px[:, 0] - mx, px[:, 1] - my) <= 24  # the disk of radius 24 (skimage's disk)
+        expected &= ~inside | near
+    assert 30 < expected[:3000].sum() < 2500 and expected[3000:].all()
+    culled = cull_by_masks(mesh, Scene(root=tmp_path, cameras=cams))
+    kept_faces = expected[tris].all(axis=1)
+    assert len(culled.triangles) == kept_faces.sum()
+    survivors = np.unique(tris[kept_faces])
+    assert np.array_equal(np.asarray(culled.vertices), v[survivors])
+
+
+def split_long_edges(tri: np.ndarray, max_edge: float) -> np.ndarray:
+    """Triangles (T,3,3) halved across their longest edge until no edge exceeds ``max_edge``."""
+    while True:
+        edges = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=-1)  # edge k: vertex k → k+1
+        long = edges.max(axis=1) > max_edge
+        if not long.any():
+            return tri
+        t, k = tri[long], edges[long].argmax(axis=1)
+        a, b, c = (t[np.arange(len(t)), (k + j) % 3] for j in range(3))
+        m = (a + b) / 2
+        tri = np.concatenate([tri[~long], np.stack([a, m, c], 1), np.stack([m, b, c], 1)])
 
 
 def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
@@ -43,9 +188,9 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     write_dtu_layout(object_scene, root, scale)
     scene = load_scene(root)
     gt = read_mesh(object_scene.gt_mesh)
-    mm = o3d.geometry.TriangleMesh(gt).transform(scale)
-    rng = np.random.default_rng(0)
-    stl = sample_surface(np.asarray(mm.vertices), np.asarray(mm.triangles), 300_000, rng)
+    # Like a structured-light scan, the STL points cover the surface the cameras see.
+    stl, _ = visible_surface_samples(gt, object_scene.cameras, 400_000, 1, np.random.default_rng(0))
+    stl = stl @ scale[:3, :3].T + scale[:3, 3]
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(stl))
     o3d.io.write_point_cloud(str(tmp_path / "stl001_total.ply"), cloud)
     res, lo = 4.0, stl.min(0) - 8
@@ -55,12 +200,39 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     obs[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
     savemat(tmp_path / "ObsMask1_10.mat", {"ObsMask": obs, "BB": np.stack([lo, lo + shape * res]), "Res": res})
     savemat(tmp_path / "Plane1.mat", {"P": np.array([0, 0, 1.0, -(scale[2, 3] + 0.001 * scale[2, 2])])})
-    args = (scene, tmp_path / "stl001_total.ply", tmp_path / "ObsMask1_10.mat", tmp_path / "Plane1.mat")
-    exact = evaluate_dtu(object_scene.gt_mesh, *args, density=0.5)
-    assert exact["chamfer"] < 0.5 and exact["n_recon"] > 10_000
-    shifted = o3d.geometry.TriangleMesh(gt).translate([0, 0, 0.02])  # 1 mm in DTU units
+
+    def score(mesh_path):
+        return PROTOCOLS["dtu"].run(EvalInputs(scene, mesh_path, tmp_path / "m.json", gt=tmp_path / "stl001_total.ply",
+                                               obs_mask=tmp_path / "ObsMask1_10.mat", plane=tmp_path / "Plane1.mat",
+                                               settings=EvalSettings(dtu_density=0.5)))
+
+    # The mesh to score: the GT cut into small triangles (mask culling judges vertices),
+    # keeping those whose centre some camera sees (no underside).
+    tri = split_long_edges(np.asarray(gt.vertices)[np.asarray(gt.triangles)], 0.05)
+    tri = tri[seen_by(MeshRaycaster([gt]), object_scene.cameras, tri.mean(axis=1), stop_at=1).any(axis=1)]
+    seen = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(tri.reshape(-1, 3)),
+                                     o3d.utility.Vector3iVector(np.arange(3 * len(tri)).reshape(-1, 3)))
+    o3d.io.write_triangle_mesh(str(tmp_path / "seen.ply"), seen)
+    exact = score(tmp_path / "seen.ply")
+    assert exact["protocol"] == "dtu" and exact["chamfer"] < 0.5 and exact["n_recon"] > 10_000
+    shifted = seen.translate([0, 0, 0.02])  # 1 mm in DTU units
     o3d.io.write_triangle_mesh(str(tmp_path / "shifted.ply"), shifted)
-    moved = evaluate_dtu(tmp_path / "shifted.ply", *args, density=0.5)
+    moved = score(tmp_path / "shifted.ply")
     # Horizontal surfaces move by the full 1 mm, vertical ones along themselves: the accuracy
     # grows by a large part of the shift and never by more than the shift.
     assert exact["accuracy"] + 0.3 < moved["accuracy"] < exact["accuracy"] + 1.0
+
+
+def test_protocol_defaults_and_requirements_are_named(tmp_path, object_dataset):
+    from eve3d.config import scene_protocol
+
+    assert scene_protocol("a", {"synthetic": {"kind": "object"}}).name == "synthetic"
+    assert scene_protocol("a", {"path": str(object_dataset), "protocol": "nvs"}).name == "nvs"
+    with pytest.raises(Eve3dError, match=r"scenes.a.protocol: unknown protocol 'chamfer'"):
+        scene_protocol("a", {"path": str(object_dataset), "protocol": "chamfer"})
+    with pytest.raises(Eve3dError, match=r"scenes.b \(protocol synthetic\): give gt_mesh"):
+        scene_protocol("b", {"path": str(tmp_path)})
+    with pytest.raises(Eve3dError, match=r"scenes.c \(protocol dtu\): give dtu:"):
+        scene_protocol("c", {"path": str(object_dataset), "protocol": "dtu"})
+    with pytest.raises(Eve3dError, match="not a Tanks and Temples dataset"):
+        scene_protocol("d", {"path": str(object_dataset), "protocol": "tnt"})

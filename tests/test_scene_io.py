@@ -52,7 +52,9 @@ def write_dtu_layout(scene: Scene, root, scale_mat: np.ndarray) -> None:
         shutil.copy(cam.image_path, root / "image" / f"{i:06d}.png")
         shutil.copy(scene.root / "masks" / cam.name, root / "mask" / f"{i:03d}.png")
         world_mat = np.eye(4)
-        world_mat[:3] = cam.projection @ inv  # maps mm points to pixels
+        idr_k = cam.K.copy()
+        idr_k[:2, 2] -= 0.5  # IDR/NeuS put pixel centres at integer coordinates
+        world_mat[:3] = idr_k @ cam.world_to_camera[:3] @ inv  # maps mm points to pixels
         arrays[f"world_mat_{i}"] = world_mat
         arrays[f"scale_mat_{i}"] = scale_mat
     np.savez(root / "cameras.npz", **arrays)

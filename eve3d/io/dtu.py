@@ -3,6 +3,8 @@
 
 Cameras are returned in the normalised frame (P = world_mat @ scale_mat), where the object
 lies in the unit sphere; ``Scene.to_world`` is ``scale_mat``, which maps back to DTU mm.
+IDR/NeuS cast rays through integer pixel coordinates (pixel centres at 0), so the principal
+point moves by +0.5 px into our convention (centres at +0.5).
 """
 from __future__ import annotations
 
@@ -46,6 +48,7 @@ def read_dtu(root: Path, check_images: bool = True) -> Scene:
             raise Eve3dError(f"{npz_path}: no world_mat_{i} for image {path.name}")
         scale = cams.get(f"scale_mat_{i}", np.eye(4))
         K, R, t = decompose_projection((cams[f"world_mat_{i}"] @ scale)[:3])
+        K[:2, 2] += 0.5  # integer pixel centres → centres at +0.5
         if check_images:
             check_image(path, (width, height))
         cameras.append(Camera(path.name, width, height, K, R, t, path, masks[i] if masks else None))

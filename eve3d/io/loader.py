@@ -26,20 +26,35 @@ def has_poses(root: Path) -> bool:
     return (root / "cameras.npz").exists() or find_colmap_model(root) is not None
 
 
+FORMATS = ("colmap", "dtu", "tnt")
+"""Dataset formats, told apart by layout (``dataset_format``); generated scenes are COLMAP."""
+
+
+def dataset_format(root: Path) -> str:
+    """``dtu`` (``cameras.npz``), ``tnt`` (a ``{Scene}_trans.txt`` beside the images) or
+    ``colmap`` (a COLMAP model, or images that SfM will pose)."""
+    root = Path(root)
+    if (root / "cameras.npz").exists():
+        return "dtu"
+    return "tnt" if tnt_name(root) else "colmap"
+
+
 def load_scene(root: str | Path, check_images: bool = True) -> Scene:
     """Read the posed dataset in ``root`` (DTU, Tanks and Temples, or COLMAP)."""
     root = Path(root)
     if not root.is_dir():
         raise Eve3dError(f"{root}: dataset folder not found")
-    if (root / "cameras.npz").exists():
+    fmt = dataset_format(root)
+    model = find_colmap_model(root)
+    if fmt == "dtu":
         scene = read_dtu(root, check_images)
-    elif (model := find_colmap_model(root)) is not None:
-        if tnt_name(root):
-            scene = read_tnt(root, model, check_images)
-        else:
-            scene = read_colmap(model, root / "images", root=root, check_images=check_images)
-    else:
+    elif model is None:
         raise Eve3dError(f"{root}: no poses (no cameras.npz, no COLMAP model in sparse/0): run `eve3d sfm` first")
+    elif fmt == "tnt":
+        scene = read_tnt(root, model, check_images)
+    else:
+        scene = read_colmap(model, root / "images", root=root, check_images=check_images)
+        scene.extras["format"] = "colmap"
     meta_path = root / METADATA
     if meta_path.exists():
         meta = json.loads(meta_path.read_text())

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
-from eve3d.config import resolve_config, stage_settings
+from eve3d.config import resolve_config, scene_protocol, stage_settings
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
 
@@ -19,11 +19,18 @@ config.update(_resolved)
 
 RESULTS = config["results"]
 SCENES = list(config["scenes"])
-TRAINED = ("3dgs", "pgsr")  # methods the joint stage trains (eve3d.joint.METHODS)
+from eve3d.joint import METHODS as TRAINED  # methods whose Gaussians the joint stage trains
+
+try:
+    PROTOCOL = {s: scene_protocol(s, config["scenes"][s]) for s in SCENES}
+except Eve3dError as e:
+    raise WorkflowError(f"config: {e}")
 
 
 def scene_methods(scene):
-    return config["scenes"][scene].get("methods", config["methods"])
+    """A scene's methods; a protocol that scores renderings (nvs) keeps the trained ones."""
+    methods = config["scenes"][scene].get("methods", config["methods"])
+    return [m for m in methods if m in TRAINED] if PROTOCOL[scene].scores == "model" else methods
 
 
 METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
@@ -121,11 +128,15 @@ def stereo_depth_args(wildcards, input):
             + (f" --wls --wls-lambda {s['wls_lambda']} --wls-sigma {s['wls_sigma']}" if s["wls"] else ""))
 
 
-def training_config(stage):
+def training_config(stage, scene=None):
     """What a training stage's job needs of the config, inline: a change reruns that stage
-    only (a joint setting does not rerun pretrain and the stereo stages after it)."""
-    keys = ("preset", "train", stage)
-    return shlex.quote(json.dumps({k: config[k] for k in keys}, sort_keys=True))
+    only (a joint setting does not rerun pretrain and the stereo stages after it). The
+    scene's protocol adds what it asks of the joint stage (nvs: held-out views)."""
+    section = dict(config[stage])
+    if stage == "joint" and scene is not None:
+        section.update(PROTOCOL[scene].joint_settings)
+    return shlex.quote(json.dumps({"preset": config["preset"], "train": config["train"], stage: section},
+                                  sort_keys=True))
 
 
 def metrics_files():
@@ -156,19 +167,28 @@ def mesh_args(wildcards):
 
 
 def evaluate_inputs(wildcards):
-    sc = scene_config(wildcards.scene)
-    inputs = {"mesh": f"{RESULTS}/{wildcards.scene}/{wildcards.method}/mesh.ply", "scene": posed_dataset(wildcards)}
-    if "dtu" in sc:
-        inputs.update(gt=sc["dtu"]["stl"], obs_mask=sc["dtu"]["obs_mask"], plane=sc["dtu"]["plane"])
-    else:
+    """The method's reconstruction (mesh, or trained model for nvs), the posed dataset and
+    the protocol's ground truth."""
+    sc, protocol = scene_config(wildcards.scene), PROTOCOL[wildcards.scene]
+    method_dir = f"{RESULTS}/{wildcards.scene}/{wildcards.method}"
+    inputs = {"scene": posed_dataset(wildcards),
+              "reconstruction": f"{method_dir}/mesh.ply" if protocol.scores == "mesh" else f"{method_dir}/point_cloud.ply"}
+    if protocol.name == "synthetic":
         inputs["gt"] = gt_input(wildcards)
+    elif protocol.name == "dtu":
+        inputs.update(gt=sc["dtu"]["stl"], obs_mask=sc["dtu"]["obs_mask"], plane=sc["dtu"]["plane"])
     return inputs
 
 
 def evaluate_args(wildcards, input):
-    e = config["evaluate"]
-    if "dtu" in scene_config(wildcards.scene):
-        return (f"--gt {input.gt} --protocol dtu --obs-mask {input.obs_mask} --plane {input.plane}"
-                f" --dtu-density {e['dtu_density']}")
-    tau = f"--tau {e['tau']}" if e["tau"] is not None else f"--tau-fraction {e['tau_fraction']}"
-    return f"--gt {gt_mesh(wildcards)} {tau}"
+    """The protocol, its inputs, and every `evaluate` key given in the config as the CLI
+    flag of the same name (the defaults live in eve3d.evaluate.EvalSettings)."""
+    protocol = PROTOCOL[wildcards.scene]
+    args = [f"--protocol {protocol.name}",
+            f"--{protocol.scores} {input.reconstruction}"]
+    if protocol.name == "synthetic":
+        args.append(f"--gt {gt_mesh(wildcards)}")
+    elif protocol.name == "dtu":
+        args.append(f"--gt {input.gt} --obs-mask {input.obs_mask} --plane {input.plane}")
+    args += [f"--{key.replace('_', '-')} {value}" for key, value in config["evaluate"].items() if value is not None]
+    return " ".join(args)

@@ -13,7 +13,7 @@ rule evaluate:
     conda:
         CONDA_ENV
     shell:
-        "{EVE3D} evaluate --mesh {input.mesh} --scene {input.scene} --out {output}"
+        "{EVE3D} evaluate --scene {input.scene} --out {output}"
         " --scene-name {wildcards.scene} --method {wildcards.method} {params.args} > {log} 2>&1"
 
 

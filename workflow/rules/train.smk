@@ -26,10 +26,11 @@ rule joint:
     output:
         model=f"{RESULTS}/{{scene}}/{{method}}/point_cloud.ply",
         depth=directory(f"{RESULTS}/{{scene}}/{{method}}/depth"),
+        metrics=f"{RESULTS}/{{scene}}/{{method}}/train_metrics.json",
     wildcard_constraints:
         method="|".join(TRAINED),
     params:
-        config=lambda wc: training_config("joint"),
+        config=lambda wc: training_config("joint", wc.scene),
     log:
         f"{RESULTS}/logs/{{scene}}/joint_{{method}}.log",
     threads: workflow.cores

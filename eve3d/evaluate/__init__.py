@@ -1,0 +1,117 @@
+"""Evaluation stage (``eve3d evaluate``): a reconstruction against ground truth.
+
+One registry, :data:`PROTOCOLS`, names every protocol; the CLI, the config check and the
+workflow read names and needs from it. A scene's protocol is its ``protocol:`` key, or the
+default of its dataset format (:data:`DEFAULT_PROTOCOL`), never guessed from which other
+keys happen to be present. One module per protocol:
+
+* ``synthetic`` (:mod:`.synthetic`): a scene with a known GT mesh; completeness over the GT
+  surface the cameras see, exact point-to-triangle distances.
+* ``dtu`` (:mod:`.dtu`): DTUeval-python's semantics, in DTU mm.
+* ``tnt`` (:mod:`.tnt`): the Tanks and Temples toolbox, ported to current open3d.
+* ``nvs`` (:mod:`.nvs`): held-out PSNR/SSIM of a trained model on every 8th view.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from eve3d.scene import Eve3dError, Scene
+
+
+@dataclass
+class EvalSettings:
+    """The ``evaluate`` section of the config (every default lives here)."""
+
+    tau: float | None = None
+    """Distance threshold of precision/recall; None = the protocol's rule (synthetic: a
+    fraction of the visible GT's bounding-box diagonal; tnt: the toolbox's per-scene table)."""
+    tau_fraction: float = 0.0025
+    """Synthetic τ = this × the diagonal of the bounding box of the GT surface the cameras see."""
+    min_views: int = 2
+    """Synthetic: a GT surface point counts as visible when this many cameras see it (2:
+    what a multi-view reconstruction can triangulate; TSDF fusion with the default
+    ``mesh.weight_threshold`` also drops surfaces fused from a single view)."""
+    samples: int = 500_000
+    """Synthetic: surface samples on each of the reconstruction and the GT (memory bound;
+    with exact point-to-triangle distances the density changes only the sampling noise)."""
+    dtu_density: float = 0.2
+    """DTU: sampling density and thinning radius in mm."""
+    dtu_max_dist: float = 20.0
+    """DTU: distances at or above this (mm) are left out of the means."""
+
+    def __post_init__(self) -> None:
+        for key in ("tau", "tau_fraction", "dtu_density", "dtu_max_dist"):
+            value = getattr(self, key)
+            if value is not None and not value > 0:
+                raise Eve3dError(f"evaluate.{key}: {value!r} is not a valid value (expected a number > 0)")
+        if self.min_views < 1:
+            raise Eve3dError(f"evaluate.min_views: {self.min_views!r} is not a valid value (expected at least 1)")
+        if self.samples < 1000:
+            raise Eve3dError(f"evaluate.samples: {self.samples!r} is too few (expected at least 1000)")
+
+
+@dataclass
+class EvalInputs:
+    """What one evaluation job is given; each protocol names the fields it needs."""
+
+    scene: Scene
+    reconstruction: Path
+    """The mesh (``mesh.ply``) or, for protocols that score renderings, the trained model."""
+    out: Path
+    """``metrics.json``; protocols with more artefacts write them beside it."""
+    gt: Path | None = None
+    """GT mesh (synthetic) or GT point cloud (DTU ``stl…_total.ply``)."""
+    obs_mask: Path | None = None
+    """DTU ``ObsMask{scan}_10.mat``."""
+    plane: Path | None = None
+    """DTU ``Plane{scan}.mat``."""
+    settings: EvalSettings = field(default_factory=EvalSettings)
+
+
+@dataclass(frozen=True)
+class Protocol:
+    name: str
+    summary: str
+    scores: str
+    """What of a method it scores: ``mesh`` (``{method}/mesh.ply``) or ``model``
+    (``{method}/point_cloud.ply``: only methods that train Gaussians)."""
+    requires: tuple[str, ...]
+    """:class:`EvalInputs` fields that must be given (besides scene and reconstruction)."""
+    entry: str
+    """``module:function`` taking :class:`EvalInputs` and returning the metrics."""
+    joint_settings: dict = field(default_factory=dict)
+    """What the protocol asks of the joint stage's training (nvs: views held out)."""
+
+    def run(self, inputs: EvalInputs) -> dict:
+        missing = [name for name in self.requires if getattr(inputs, name) is None]
+        if missing:
+            flags = ", ".join(f"--{name.replace('_', '-')}" for name in missing)
+            raise Eve3dError(f"the {self.name} protocol needs {', '.join(missing)} (eve3d evaluate {flags})")
+        module, function = self.entry.split(":")
+        metrics = getattr(importlib.import_module(f"eve3d.evaluate.{module}"), function)(inputs)
+        return {"protocol": self.name, **metrics}
+
+
+PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (
+    Protocol("synthetic", "GT mesh: visible GT surface, exact point-to-triangle distances, F-score at τ",
+             "mesh", ("gt",), "synthetic:evaluate_synthetic"),
+    Protocol("dtu", "DTUeval-python: mask culling, 0.2 mm sampling, ObsMask crop, Chamfer in mm",
+             "mesh", ("gt", "obs_mask", "plane"), "dtu:evaluate_dtu"),
+    Protocol("tnt", "Tanks and Temples toolbox: trajectory alignment, ICP, polygon crop, F-score at τ",
+             "mesh", (), "tnt:evaluate_tnt"),
+    Protocol("nvs", "held-out views (every 8th, Mip-NeRF 360): PSNR and SSIM of the rendered model",
+             "model", (), "nvs:evaluate_views", {"holdout": 8}),
+)}
+
+DEFAULT_PROTOCOL: dict[str, str] = {"colmap": "synthetic", "dtu": "dtu", "tnt": "tnt"}
+"""Protocol of each dataset format (``eve3d.io.loader.dataset_format``) unless a scene names one."""
+
+
+def protocol_for(name: str | None, dataset_format: str, where: str = "protocol") -> Protocol:
+    """The protocol called ``name``, or the default of ``dataset_format`` when None."""
+    name = name or DEFAULT_PROTOCOL[dataset_format]
+    if name not in PROTOCOLS:
+        raise Eve3dError(f"{where}: unknown protocol {name!r}; choose one of {', '.join(PROTOCOLS)}")
+    return PROTOCOLS[name]

@@ -1,0 +1,61 @@
+"""What the protocols share: reading meshes, distances, precision/recall/F-score."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from eve3d.scene import Eve3dError
+
+
+def read_mesh(path: Path):
+    """An open3d legacy triangle mesh, or a clear error."""
+    import open3d as o3d
+
+    if not Path(path).is_file():
+        raise Eve3dError(f"{path}: mesh not found")
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    if len(mesh.triangles) == 0:
+        raise Eve3dError(f"{path}: not a triangle mesh, or an empty one")
+    return mesh
+
+
+def nearest_distances(query: np.ndarray, reference: np.ndarray, upper_bound: float = np.inf) -> np.ndarray:
+    """Distance from each query point to its nearest reference point; ``inf`` where none is
+    closer than ``upper_bound``. A finite bound keeps the search short for points far from
+    a dense reference (floaters), which otherwise visit most of the tree."""
+    if not len(reference):
+        return np.full(len(query), np.inf)
+    return cKDTree(reference).query(query, k=1, distance_upper_bound=upper_bound, workers=-1)[0]
+
+
+def mesh_distances(mesh, points: np.ndarray, chunk: int = 1_000_000) -> np.ndarray:
+    """Exact unsigned distance from each point to the nearest triangle of ``mesh`` (open3d's
+    BVH point query), in chunks so memory stays bounded."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    out = np.empty(len(points))
+    for i in range(0, len(points), chunk):
+        part = o3d.core.Tensor(np.ascontiguousarray(points[i:i + chunk], dtype=np.float32))
+        out[i:i + chunk] = scene.compute_distance(part).numpy()
+    return out
+
+
+def fscore(precision: float, recall: float) -> float:
+    return 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+
+
+def distance_metrics(d_recon_to_gt: np.ndarray, d_gt_to_recon: np.ndarray, tau: float) -> dict[str, float | None]:
+    """Accuracy (mean recon→GT), completeness (mean GT→recon), Chamfer (their mean),
+    precision and recall at ``tau`` and the F-score. A side without points scores
+    precision/recall 0 and a distance of None (JSON has no infinity)."""
+    precision = float(np.mean(d_recon_to_gt < tau)) if len(d_recon_to_gt) else 0.0
+    recall = float(np.mean(d_gt_to_recon < tau)) if len(d_gt_to_recon) else 0.0
+    accuracy = float(np.mean(d_recon_to_gt)) if len(d_recon_to_gt) else None
+    completeness = float(np.mean(d_gt_to_recon)) if len(d_gt_to_recon) else None
+    chamfer = None if accuracy is None or completeness is None else (accuracy + completeness) / 2
+    return {"accuracy": accuracy, "completeness": completeness, "chamfer": chamfer,
+            "precision": precision, "recall": recall, "fscore": fscore(precision, recall)}

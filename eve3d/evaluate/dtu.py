@@ -1,0 +1,129 @@
+"""The ``dtu`` protocol: DTUeval-python's semantics, in DTU mm.
+
+Cull the mesh by the object masks dilated by a disk of 24 px (2DGS's ``cull_scan``), undo
+``scale_mat``, sample the triangles on a 0.2 mm barycentric grid and thin greedily to
+0.2 mm, keep the points inside the bounding box and the ``ObsMask``; accuracy over those
+against the STL points, completeness of the STL points above the ground plane; distances
+≥ 20 mm are left out of both means; Chamfer = mean(accuracy, completeness).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from eve3d.evaluate import EvalInputs
+from eve3d.evaluate.common import nearest_distances, read_mesh
+from eve3d.scene import Eve3dError, Scene
+
+MASK_DILATION = 24
+"""Radius (px) of the disk the object masks are dilated by before culling."""
+
+
+def cull_by_masks(mesh, scene: Scene, dilation: int = MASK_DILATION):
+    """Drop the vertices that fall, in some image, on a pixel outside its object mask
+    dilated by a disk of ``dilation`` px (vertices behind a camera or outside its image are
+    not judged by it); a face stays only if all its vertices stay."""
+    import cv2
+    from skimage.morphology import disk
+
+    from eve3d.fileio import read_mask
+
+    v = np.asarray(mesh.vertices)
+    keep = np.ones(len(v), dtype=bool)
+    kernel = disk(dilation).astype(np.uint8)
+    for cam in scene.cameras:
+        if cam.mask_path is None:
+            raise Eve3dError(f"{scene.root}: the DTU protocol needs object masks (mask/) for every view")
+        mask = cv2.dilate(read_mask(cam.mask_path).astype(np.uint8), kernel) > 0
+        uv, z = cam.project(v)
+        px = np.floor(uv).astype(np.int64)  # the pixel a point falls in (centres at +0.5)
+        inside = (z > 0) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        ok = np.ones(len(v), dtype=bool)
+        ok[inside] = mask[px[inside, 1], px[inside, 0]]
+        keep &= ok
+    tri = np.asarray(mesh.triangles)
+    mesh.remove_triangles_by_mask(~keep[tri].all(axis=1))
+    mesh.remove_unreferenced_vertices()
+    return mesh
+
+
+def dtu_sample_mesh(vertices: np.ndarray, triangles: np.ndarray, density: float) -> np.ndarray:
+    """DTUeval-python's deterministic triangle sampling: a grid of barycentric points per
+    triangle with step ``density`` (plus the vertices)."""
+    tri = vertices[triangles]
+    v1, v2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    l1, l2 = np.linalg.norm(v1, axis=-1), np.linalg.norm(v2, axis=-1)
+    area2 = np.linalg.norm(np.cross(v1, v2), axis=-1)
+    ok = area2 > 0
+    tri, v1, v2, l1, l2, area2 = tri[ok], v1[ok], v2[ok], l1[ok], l2[ok], area2[ok]
+    thr = density * np.sqrt(l1 * l2 / area2)
+    n1, n2 = np.floor(l1 / thr), np.floor(l2 / thr)
+    out = [vertices]
+    for (a, b), group in _group_by_counts(n1, n2):
+        c = np.mgrid[: a + 1, : b + 1].reshape(2, -1).astype(np.float64) + 0.5
+        c[0] /= max(a, 1e-7)
+        c[1] /= max(b, 1e-7)
+        c = c[:, c[0] + c[1] < 1]
+        if c.shape[1]:
+            pts = v1[group, None] * c[0][None, :, None] + v2[group, None] * c[1][None, :, None] + tri[group, 0, None]
+            out.append(pts.reshape(-1, 3))
+    return np.concatenate(out)
+
+
+def _group_by_counts(n1: np.ndarray, n2: np.ndarray):
+    """Triangles grouped by their (n1, n2) sample counts, so each group samples in one go."""
+    keys = np.stack([n1, n2], 1).astype(np.int64)
+    uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+    for k, (a, b) in enumerate(uniq):
+        yield (int(a), int(b)), np.flatnonzero(inverse.ravel() == k)
+
+
+def radius_thin(points: np.ndarray, radius: float, rng: np.random.Generator) -> np.ndarray:
+    """DTUeval-python's greedy thinning: in random order, keep a point and drop every other
+    point within ``radius`` of it."""
+    points = points[rng.permutation(len(points))]
+    tree = cKDTree(points)
+    keep = np.ones(len(points), dtype=bool)
+    for i, nbrs in enumerate(tree.query_ball_point(points, r=radius, workers=-1)):
+        if keep[i]:
+            keep[nbrs] = False
+            keep[i] = True
+    return points[keep]
+
+
+def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
+    """The protocol of the module docstring; distances in mm."""
+    import open3d as o3d
+    from scipy.io import loadmat
+
+    s, scene = inputs.settings, inputs.scene
+    rng = np.random.default_rng(0)
+    mesh = cull_by_masks(read_mesh(inputs.reconstruction), scene)
+    if len(mesh.triangles) == 0:
+        raise Eve3dError(f"{inputs.reconstruction}: nothing of the mesh lies inside the object masks")
+    mesh.transform(scene.to_world)
+    data = dtu_sample_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), s.dtu_density)
+    data = radius_thin(data, s.dtu_density, rng)
+    try:
+        obs = loadmat(inputs.obs_mask)
+        obs_mask, bb, res = obs["ObsMask"], obs["BB"].astype(np.float32), float(np.squeeze(obs["Res"]))
+        plane = loadmat(inputs.plane)["P"].reshape(4)
+    except Exception as e:
+        raise Eve3dError(f"{inputs.obs_mask} / {inputs.plane}: cannot read DTU observation mask or plane ({e})") from None
+    inbound = np.all((data >= bb[:1] - patch) & (data < bb[1:] + patch * 2), axis=1)
+    data_in = data[inbound]
+    grid = np.around((data_in - bb[:1]) / res).astype(np.int32)
+    grid_ok = np.all((grid >= 0) & (grid < np.array(obs_mask.shape)), axis=1)
+    in_obs = obs_mask[grid[grid_ok, 0], grid[grid_ok, 1], grid[grid_ok, 2]].astype(bool)
+    data_in_obs = data_in[grid_ok][in_obs]
+    stl = np.asarray(o3d.io.read_point_cloud(str(inputs.gt)).points)
+    if not len(stl):
+        raise Eve3dError(f"{inputs.gt}: empty or unreadable ground-truth point cloud")
+    # Distances at or beyond max_dist are left out of the means, so the search stops there.
+    d2s = nearest_distances(data_in_obs, stl, s.dtu_max_dist)
+    above = np.concatenate([stl, np.ones((len(stl), 1))], 1) @ plane > 0
+    s2d = nearest_distances(stl[above], data_in, s.dtu_max_dist)
+    acc = float(d2s[d2s < s.dtu_max_dist].mean())
+    comp = float(s2d[s2d < s.dtu_max_dist].mean())
+    return {"accuracy": acc, "completeness": comp, "chamfer": (acc + comp) / 2,
+            "n_recon": int(len(data_in_obs)), "n_gt": int(above.sum())}

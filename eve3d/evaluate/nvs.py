@@ -1,0 +1,42 @@
+"""The ``nvs`` protocol: novel views, the Mip-NeRF 360 convention.
+
+Every 8th view (index % 8 == 0) is held out of training (the workflow sets
+``joint.holdout`` for scenes with this protocol); the trained Gaussians are rendered from
+those views at the training resolution, with the training's rasterisation settings (read
+from ``train_metrics.json`` beside the model), and scored by PSNR and SSIM against the
+photos (resized with an area filter, as in training).
+"""
+from __future__ import annotations
+
+import json
+
+from eve3d.evaluate import PROTOCOLS, EvalInputs
+from eve3d.scene import Eve3dError
+
+RENDER_KEYS = ("resolution", "background", "antialiased", "backend", "device")
+"""Training settings that change what a view renders to."""
+
+
+def evaluate_views(inputs: EvalInputs) -> dict:
+    """PSNR and SSIM of the held-out views (module docstring)."""
+    from eve3d.gaussians import GaussianModel
+    from eve3d.training import Trainer, TrainSettings
+
+    holdout = PROTOCOLS["nvs"].joint_settings["holdout"]
+    model_path = inputs.reconstruction
+    record = model_path.parent / "train_metrics.json"
+    try:
+        trained = json.loads(record.read_text())["settings"]
+    except (OSError, ValueError, KeyError) as e:
+        raise Eve3dError(f"{record}: the nvs protocol reads the training settings from here ({e})") from None
+    if trained.get("holdout") != holdout:
+        raise Eve3dError(f"{model_path}: trained with holdout {trained.get('holdout')}, so the views the nvs protocol "
+                         f"scores (every {holdout}th) were training views; train with joint.holdout: {holdout} "
+                         f"(the workflow does so for scenes with protocol: nvs)")
+    model = GaussianModel.load_ply(model_path)
+    render = {k: tuple(v) if isinstance(v, list) else v for k, v in trained.items() if k in RENDER_KEYS}
+    settings = TrainSettings(holdout=holdout, sh_degree=model.sh_degree, **render)
+    trainer = Trainer(inputs.scene, settings, model_path.parent, "nvs")
+    trainer.set_model(model)
+    held = trainer.evaluate(trainer.test_ids)
+    return {**held, "resolution": settings.resolution, "holdout": holdout}
