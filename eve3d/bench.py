@@ -101,9 +101,10 @@ def peak_rss_mb() -> float:
     """This process's peak resident memory. Read from /proc (VmHWM), which starts afresh
     at exec: getrusage's ru_maxrss keeps the spawning parent's peak."""
     try:
-        for line in open("/proc/self/status"):
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
     except OSError:
         pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux

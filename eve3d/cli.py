@@ -177,7 +177,7 @@ def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
 
     if a.meshes and not (a.scene and a.gt):
         raise Eve3dError("--meshes needs --scene (the cameras) and --gt (the GT mesh)")
-    rows = bench.bench_evaluate([(str(m), str(m)) for m in a.meshes], a.scene, a.gt)
+    rows = bench.bench_evaluate([("/".join(Path(m).parts[-3:]), str(m)) for m in a.meshes], a.scene, a.gt)
     print(json.dumps(rows, indent=2) if a.json else bench.format_evaluate_table(rows))
 
 

@@ -72,24 +72,40 @@ def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEM
     return config
 
 
+def scene_value(scene: dict, key: str):
+    """A dotted key (``dtu.stl``) of a scene's config, or None."""
+    for part in key.split("."):
+        scene = scene.get(part) if isinstance(scene, dict) else None
+    return scene
+
+
+def has_gt_mesh(scene: dict) -> bool:
+    """Whether a workflow scene has a GT mesh (generated scenes bring their own)."""
+    return "synthetic" in scene or "gt_mesh" in scene
+
+
 def scene_protocol(name: str, scene: dict):
     """The evaluation protocol (``eve3d.evaluate.Protocol``) of the workflow scene ``name``:
     its ``protocol`` key, else the default of its dataset format; an error names the key
-    when the protocol is unknown or the scene lacks what it needs."""
+    when the protocol is unknown or the scene lacks what the protocol needs."""
     from eve3d.evaluate import protocol_for
-    from eve3d.io.loader import dataset_format
+    from eve3d.io.loader import dataset_format, has_poses
 
+    # A generated scene is a COLMAP dataset with exact poses that does not exist yet.
     fmt = "colmap" if "synthetic" in scene else dataset_format(Path(scene["path"]))
     protocol = protocol_for(scene.get("protocol"), fmt, f"scenes.{name}.protocol")
     where = f"scenes.{name} (protocol {protocol.name})"
-    if protocol.name == "synthetic" and "synthetic" not in scene and "gt_mesh" not in scene:
-        raise Eve3dError(f"{where}: give gt_mesh, a GT mesh in the dataset's frame (or protocol: nvs to score "
-                         f"held-out views instead)")
-    if protocol.name == "dtu" and "dtu" not in scene:
-        raise Eve3dError(f"{where}: give dtu: {{stl, obs_mask, plane}}, the DTU ground-truth files")
-    if protocol.name == "tnt" and fmt != "tnt":
-        raise Eve3dError(f"{where}: {scene.get('path')} is not a Tanks and Temples dataset ({{Scene}}_trans.txt, "
-                         f"{{Scene}}.json, {{Scene}}.ply and {{Scene}}_COLMAP_SfM.log beside images/)")
+    if protocol.formats and fmt not in protocol.formats:
+        raise Eve3dError(f"{where}: {scene.get('path')} is a {fmt} dataset, the protocol scores "
+                         f"{' or '.join(protocol.formats)} datasets")
+    if protocol.own_poses and "path" in scene and not has_poses(Path(scene["path"])):
+        raise Eve3dError(f"{where}: {scene['path']} has no poses, and SfM would pose it in a frame of its own, "
+                         f"where its ground truth does not lie; bring the dataset with its poses")
+    for key in protocol.config_inputs.values():
+        if scene_value(scene, key) is None and not (key == "gt_mesh" and has_gt_mesh(scene)):
+            raise Eve3dError(f"{where}: give {key}" + (
+                ", a GT mesh in the dataset's frame (or protocol: nvs to score held-out views)"
+                if key == "gt_mesh" else ""))
     return protocol
 
 

@@ -101,23 +101,25 @@ class MeshRaycaster:
 
 
 def seen_by(caster: MeshRaycaster, cams: list[Camera], points: np.ndarray, stop_at: int | None = None,
-            rel_tol: float = 1e-4) -> np.ndarray:
-    """(N, C) bool: camera c sees point i, i.e. the point lies in front of it, inside its
-    image, and the ray from its centre to the point meets no surface more than ``rel_tol``
-    of the way before it (a ray that meets nothing at all passed a triangle edge: seen).
-    Points already seen by ``stop_at`` cameras are not tested against the rest (cheaper
-    when only "seen at all" matters)."""
+            rel_tol: float = 1e-4):
+    """Yield (camera index, indices of the points it sees): a camera sees a point that lies
+    in front of it, inside its image, with no surface more than ``rel_tol`` of the way
+    along the ray from its centre (a ray that meets nothing at all passed a triangle edge:
+    seen). Points already seen by ``stop_at`` cameras are not tested against the rest."""
     points = np.asarray(points, dtype=np.float64)
-    seen = np.zeros((len(points), len(cams)), dtype=bool)
     count = np.zeros(len(points), dtype=np.int64)
     for ci, cam in enumerate(cams):
         todo = np.arange(len(points)) if stop_at is None else np.flatnonzero(count < stop_at)
-        uv, z = cam.project(points[todo])
-        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
-        todo = todo[inside]
+        todo = todo[cam.in_image(*cam.project(points[todo]))]
         # Rays from the centre with the point at t = 1.
-        t = caster.hit_distances(cam.center, points[todo] - cam.center)
-        ok = t >= 1 - rel_tol
-        seen[todo[ok], ci] = True
-        count[todo[ok]] += 1
-    return seen
+        seen = todo[caster.hit_distances(cam.center, points[todo] - cam.center) >= 1 - rel_tol]
+        count[seen] += 1
+        yield ci, seen
+
+
+def seen_counts(caster: MeshRaycaster, cams: list[Camera], points: np.ndarray, stop_at: int | None = None) -> np.ndarray:
+    """How many of ``cams`` see each point (at most ``stop_at``), see ``seen_by``."""
+    count = np.zeros(len(points), dtype=np.int64)
+    for _, seen in seen_by(caster, cams, points, stop_at):
+        count[seen] += 1
+    return count

@@ -88,6 +88,11 @@ class Camera:
             uv = uvw[:, :2] / uvw[:, 2:3]
         return uv, z
 
+    def in_image(self, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Which projections (from ``project``) lie in front of the camera and inside the image."""
+        with np.errstate(invalid="ignore"):
+            return (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < self.width) & (uv[:, 1] >= 0) & (uv[:, 1] < self.height)
+
     def pixel_rays(self) -> np.ndarray:
         """World-space ray directions (H,W,3) through pixel centres, scaled so that a
         point at ray parameter s has camera depth z = s."""

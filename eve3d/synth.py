@@ -296,7 +296,9 @@ def surface_points(mesh, cams: list[Camera], caster: MeshRaycaster, count: int,
                    rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray]]:
     """A stand-in for SfM points: surface samples seen (unoccluded) by at least two views."""
     pts = sample_surface(np.asarray(mesh.vertices), np.asarray(mesh.triangles), 4 * count, rng)
-    seen = seen_by(caster, cams, pts)
+    seen = np.zeros((len(pts), len(cams)), dtype=bool)
+    for ci, idx in seen_by(caster, cams, pts):
+        seen[idx, ci] = True
     keep = np.flatnonzero(seen.sum(axis=1) >= 2)[:count]
     return pts[keep], [np.flatnonzero(seen[i]) for i in keep]
 

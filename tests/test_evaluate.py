@@ -10,7 +10,7 @@ from eve3d.evaluate.common import distance_metrics, mesh_distances, read_mesh
 from eve3d.evaluate.dtu import cull_by_masks
 from eve3d.evaluate.synthetic import visible_surface_samples
 from eve3d.io import load_scene
-from eve3d.raycast import MeshRaycaster, seen_by
+from eve3d.raycast import MeshRaycaster, seen_counts
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.synth import object_cameras
 from tests.conftest import run_cli
@@ -108,7 +108,7 @@ def test_synthetic_protocol_ignores_unseen_gt_and_crops_far_recon(tmp_path):
     with_hidden = run("gt.ply", "gt_hidden.ply")
     assert with_hidden["recall"] == 1.0 and with_hidden["precision"] == 1.0
     far_recon = run("recon_far.ply", "gt.ply")
-    assert far_recon["precision"] == 1.0 and far_recon["crop"]["recon_samples_left_out"] > 0
+    assert far_recon["precision"] == 1.0 and far_recon["crop"]["recon_area_fraction_left_out"] > 0.05
 
 
 def test_evaluate_cli_writes_tau_and_its_rule(object_dataset, tmp_path):
@@ -124,7 +124,7 @@ def test_evaluate_cli_writes_tau_and_its_rule(object_dataset, tmp_path):
     assert r.returncode == 2 and "the dtu protocol needs gt, obs_mask, plane" in r.stderr
     r = run_cli("evaluate", "--mesh", object_dataset / "gt/mesh.ply", "--gt", object_dataset / "gt/mesh.ply",
                 "--scene", object_dataset, "--out", out, "--tau", "-1")
-    assert r.returncode == 2 and "evaluate.tau: -1" in r.stderr
+    assert r.returncode == 2 and "evaluate.tau (--tau): -1" in r.stderr
 
 
 def test_dtu_culling_removes_exactly_the_vertices_outside_the_dilated_masks(tmp_path):
@@ -209,7 +209,7 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     # The mesh to score: the GT cut into small triangles (mask culling judges vertices),
     # keeping those whose centre some camera sees (no underside).
     tri = split_long_edges(np.asarray(gt.vertices)[np.asarray(gt.triangles)], 0.05)
-    tri = tri[seen_by(MeshRaycaster([gt]), object_scene.cameras, tri.mean(axis=1), stop_at=1).any(axis=1)]
+    tri = tri[seen_counts(MeshRaycaster([gt]), object_scene.cameras, tri.mean(axis=1), stop_at=1) > 0]
     seen = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(tri.reshape(-1, 3)),
                                      o3d.utility.Vector3iVector(np.arange(3 * len(tri)).reshape(-1, 3)))
     o3d.io.write_triangle_mesh(str(tmp_path / "seen.ply"), seen)
@@ -231,8 +231,10 @@ def test_protocol_defaults_and_requirements_are_named(tmp_path, object_dataset):
     with pytest.raises(Eve3dError, match=r"scenes.a.protocol: unknown protocol 'chamfer'"):
         scene_protocol("a", {"path": str(object_dataset), "protocol": "chamfer"})
     with pytest.raises(Eve3dError, match=r"scenes.b \(protocol synthetic\): give gt_mesh"):
-        scene_protocol("b", {"path": str(tmp_path)})
-    with pytest.raises(Eve3dError, match=r"scenes.c \(protocol dtu\): give dtu:"):
+        scene_protocol("b", {"path": str(object_dataset)})
+    with pytest.raises(Eve3dError, match=r"scenes.c \(protocol dtu\): .* is a colmap dataset, the protocol scores dtu"):
         scene_protocol("c", {"path": str(object_dataset), "protocol": "dtu"})
-    with pytest.raises(Eve3dError, match="not a Tanks and Temples dataset"):
+    with pytest.raises(Eve3dError, match="the protocol scores tnt datasets"):
         scene_protocol("d", {"path": str(object_dataset), "protocol": "tnt"})
+    with pytest.raises(Eve3dError, match="has no poses, and SfM would pose it in a frame of its own"):
+        scene_protocol("e", {"path": str(object_dataset / "images"), "gt_mesh": "gt.ply"})

@@ -153,10 +153,33 @@ def test_oracle_scores_near_perfectly_on_scenes_brought_by_a_user(tmp_path):
 
 
 def test_scene_without_ground_truth_is_refused_before_any_job(tmp_path, object_dataset):
-    cfg = write_config(tmp_path, scenes={"mine": {"path": str(object_dataset / "images")}})
+    cfg = write_config(tmp_path, scenes={"mine": {"path": str(object_dataset)}})
     r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode != 0
     assert "scenes.mine (protocol synthetic): give gt_mesh" in r.stdout + r.stderr
     cfg = write_config(tmp_path, scenes={"mine": {"synthetic": {"kind": "object"}, "protocol": "chamfer"}})
     r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode != 0 and "scenes.mine.protocol: unknown protocol 'chamfer'" in r.stdout + r.stderr
+
+
+def test_dry_run_of_dtu_and_nvs_scenes(tmp_path, object_scene, object_dataset):
+    """A DTU scan (default protocol dtu; no GT mesh, so no oracle) and a COLMAP scene scored
+    on held-out views (protocol nvs; trained methods only, held out in training)."""
+    from tests.test_scene_io import dtu_scale_mat, write_dtu_layout
+
+    scan = tmp_path / "scan1"
+    write_dtu_layout(object_scene, scan, dtu_scale_mat())
+    for name in ("stl001_total.ply", "ObsMask1_10.mat", "Plane1.mat"):
+        (tmp_path / name).write_text("")
+    dtu = {"stl": str(tmp_path / "stl001_total.ply"), "obs_mask": str(tmp_path / "ObsMask1_10.mat"),
+           "plane": str(tmp_path / "Plane1.mat")}
+    cfg = write_config(tmp_path, methods=["oracle", "stereo-tsdf", "pgsr"],
+                       scenes={"scan1": {"path": str(scan), "dtu": dtu},
+                               "views": {"path": str(object_dataset), "protocol": "nvs"}})
+    r = snakemake("-n", "-p", "--configfile", str(cfg), "--replace-workflow-config")
+    out = r.stdout + r.stderr
+    assert r.returncode == 0, out[-3000:]
+    assert "scan1/oracle" not in out and "views/oracle" not in out and "views/stereo-tsdf" not in out
+    assert f"--protocol dtu --mesh {tmp_path}/results/scan1/pgsr/mesh.ply --gt {dtu['stl']}" in out
+    assert f"--protocol nvs --model {tmp_path}/results/views/pgsr/point_cloud.ply" in out
+    assert '\\"holdout\\": 8' in out or '"holdout": 8' in out

@@ -34,22 +34,24 @@ class EvalSettings:
     what a multi-view reconstruction can triangulate; TSDF fusion with the default
     ``mesh.weight_threshold`` also drops surfaces fused from a single view)."""
     samples: int = 500_000
-    """Synthetic: surface samples on each of the reconstruction and the GT (memory bound;
-    with exact point-to-triangle distances the density changes only the sampling noise)."""
+    """Synthetic: surface samples scored on each of the reconstruction (inside the crop) and
+    the visible GT; with exact point-to-triangle distances the count sets only the sampling
+    noise and the memory. tnt: at most this many area samples beside the mesh's vertices."""
     dtu_density: float = 0.2
     """DTU: sampling density and thinning radius in mm."""
     dtu_max_dist: float = 20.0
     """DTU: distances at or above this (mm) are left out of the means."""
 
     def __post_init__(self) -> None:
+        where = lambda key: f"evaluate.{key} (--{key.replace('_', '-')})"  # noqa: E731
         for key in ("tau", "tau_fraction", "dtu_density", "dtu_max_dist"):
             value = getattr(self, key)
             if value is not None and not value > 0:
-                raise Eve3dError(f"evaluate.{key}: {value!r} is not a valid value (expected a number > 0)")
+                raise Eve3dError(f"{where(key)}: {value!r} is not a valid value (expected a number > 0)")
         if self.min_views < 1:
-            raise Eve3dError(f"evaluate.min_views: {self.min_views!r} is not a valid value (expected at least 1)")
+            raise Eve3dError(f"{where('min_views')}: {self.min_views!r} is not a valid value (expected at least 1)")
         if self.samples < 1000:
-            raise Eve3dError(f"evaluate.samples: {self.samples!r} is too few (expected at least 1000)")
+            raise Eve3dError(f"{where('samples')}: {self.samples!r} is too few (expected at least 1000)")
 
 
 @dataclass
@@ -77,18 +79,28 @@ class Protocol:
     scores: str
     """What of a method it scores: ``mesh`` (``{method}/mesh.ply``) or ``model``
     (``{method}/point_cloud.ply``: only methods that train Gaussians)."""
-    requires: tuple[str, ...]
-    """:class:`EvalInputs` fields that must be given (besides scene and reconstruction)."""
     entry: str
     """``module:function`` taking :class:`EvalInputs` and returning the metrics."""
+    config_inputs: dict = field(default_factory=dict)
+    """:class:`EvalInputs` field → the workflow scene's config key that gives it (each also a
+    CLI flag, ``--obs-mask`` for ``obs_mask``)."""
+    formats: tuple[str, ...] = ()
+    """Dataset formats it applies to (empty: any)."""
+    own_poses: bool = False
+    """The ground truth lies in the dataset's own frame, so SfM poses (a frame of their own)
+    cannot be scored."""
     joint_settings: dict = field(default_factory=dict)
     """What the protocol asks of the joint stage's training (nvs: views held out)."""
 
     def run(self, inputs: EvalInputs) -> dict:
-        missing = [name for name in self.requires if getattr(inputs, name) is None]
+        missing = [name for name in self.config_inputs if getattr(inputs, name) is None]
         if missing:
             flags = ", ".join(f"--{name.replace('_', '-')}" for name in missing)
             raise Eve3dError(f"the {self.name} protocol needs {', '.join(missing)} (eve3d evaluate {flags})")
+        fmt = inputs.scene.extras.get("format")
+        if self.formats and fmt not in self.formats:
+            raise Eve3dError(f"{inputs.scene.root}: the {self.name} protocol needs a {' or '.join(self.formats)} "
+                             f"dataset, this one is {fmt}")
         module, function = self.entry.split(":")
         metrics = getattr(importlib.import_module(f"eve3d.evaluate.{module}"), function)(inputs)
         return {"protocol": self.name, **metrics}
@@ -96,14 +108,18 @@ class Protocol:
 
 PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (
     Protocol("synthetic", "GT mesh: visible GT surface, exact point-to-triangle distances, F-score at τ",
-             "mesh", ("gt",), "synthetic:evaluate_synthetic"),
+             "mesh", "synthetic:evaluate_synthetic", {"gt": "gt_mesh"}, own_poses=True),
     Protocol("dtu", "DTUeval-python: mask culling, 0.2 mm sampling, ObsMask crop, Chamfer in mm",
-             "mesh", ("gt", "obs_mask", "plane"), "dtu:evaluate_dtu"),
+             "mesh", "dtu:evaluate_dtu", {"gt": "dtu.stl", "obs_mask": "dtu.obs_mask", "plane": "dtu.plane"},
+             formats=("dtu",)),
     Protocol("tnt", "Tanks and Temples toolbox: trajectory alignment, ICP, polygon crop, F-score at τ",
-             "mesh", (), "tnt:evaluate_tnt"),
+             "mesh", "tnt:evaluate_tnt", formats=("tnt",), own_poses=True),
     Protocol("nvs", "held-out views (every 8th, Mip-NeRF 360): PSNR and SSIM of the rendered model",
-             "model", (), "nvs:evaluate_views", {"holdout": 8}),
+             "model", "nvs:evaluate_views", joint_settings={"holdout": 8}),
 )}
+
+GIVEN_TAU = "given (evaluate.tau)"
+"""``tau_rule`` of a τ the user set."""
 
 DEFAULT_PROTOCOL: dict[str, str] = {"colmap": "synthetic", "dtu": "dtu", "tnt": "tnt"}
 """Protocol of each dataset format (``eve3d.io.loader.dataset_format``) unless a scene names one."""

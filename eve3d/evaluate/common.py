@@ -35,11 +35,15 @@ def mesh_distances(mesh, points: np.ndarray, chunk: int = 1_000_000) -> np.ndarr
     BVH point query), in chunks so memory stays bounded."""
     import open3d as o3d
 
+    # open3d works in float32: move the mesh's centre to the origin first, so that large
+    # (e.g. georeferenced) coordinates keep their precision.
+    centre = np.asarray(mesh.get_axis_aligned_bounding_box().get_center())
+    centred = o3d.geometry.TriangleMesh(mesh).translate(-centre)
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(centred))
     out = np.empty(len(points))
     for i in range(0, len(points), chunk):
-        part = o3d.core.Tensor(np.ascontiguousarray(points[i:i + chunk], dtype=np.float32))
+        part = o3d.core.Tensor(np.ascontiguousarray(points[i:i + chunk] - centre, dtype=np.float32))
         out[i:i + chunk] = scene.compute_distance(part).numpy()
     return out
 

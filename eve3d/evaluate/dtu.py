@@ -36,10 +36,10 @@ def cull_by_masks(mesh, scene: Scene, dilation: int = MASK_DILATION):
             raise Eve3dError(f"{scene.root}: the DTU protocol needs object masks (mask/) for every view")
         mask = cv2.dilate(read_mask(cam.mask_path).astype(np.uint8), kernel) > 0
         uv, z = cam.project(v)
-        px = np.floor(uv).astype(np.int64)  # the pixel a point falls in (centres at +0.5)
-        inside = (z > 0) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        inside = cam.in_image(uv, z)
+        px = np.floor(uv[inside]).astype(np.int64)  # the pixel a point falls in (centres at +0.5)
         ok = np.ones(len(v), dtype=bool)
-        ok[inside] = mask[px[inside, 1], px[inside, 0]]
+        ok[inside] = mask[px[:, 1], px[:, 0]]
         keep &= ok
     tri = np.asarray(mesh.triangles)
     mesh.remove_triangles_by_mask(~keep[tri].all(axis=1))
@@ -123,7 +123,10 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     d2s = nearest_distances(data_in_obs, stl, s.dtu_max_dist)
     above = np.concatenate([stl, np.ones((len(stl), 1))], 1) @ plane > 0
     s2d = nearest_distances(stl[above], data_in, s.dtu_max_dist)
-    acc = float(d2s[d2s < s.dtu_max_dist].mean())
-    comp = float(s2d[s2d < s.dtu_max_dist].mean())
+    near_d2s, near_s2d = d2s[d2s < s.dtu_max_dist], s2d[s2d < s.dtu_max_dist]
+    if not len(near_d2s) or not len(near_s2d):
+        raise Eve3dError(f"{inputs.reconstruction}: no point of the mesh inside the ObsMask lies within "
+                         f"{s.dtu_max_dist:g} mm of {inputs.gt}: is the mesh in the scan's normalised frame?")
+    acc, comp = float(near_d2s.mean()), float(near_s2d.mean())
     return {"accuracy": acc, "completeness": comp, "chamfer": (acc + comp) / 2,
             "n_recon": int(len(data_in_obs)), "n_gt": int(above.sum())}

@@ -10,8 +10,8 @@
   visible-GT samples → the reconstructed *mesh* (completeness, recall) are point-to-triangle
   distances (open3d's BVH query), so the result does not depend on how densely either
   surface is sampled; the sample count only sets the sampling noise and bounds the memory.
-* **Crop.** Reconstruction samples outside the visible GT's bounding box grown by τ are
-  left out (the count is reported).
+* **Crop.** The reconstruction outside the visible GT's bounding box grown by τ is left
+  out (its share of the area is reported).
 * **τ.** ``evaluate.tau`` when given, else ``tau_fraction`` × the diagonal of the visible
   GT's bounding box: the same rule for an object on a table and a room seen from inside.
 """
@@ -19,42 +19,62 @@ from __future__ import annotations
 
 import numpy as np
 
-from eve3d.evaluate import EvalInputs
+from eve3d.evaluate import GIVEN_TAU, EvalInputs
 from eve3d.evaluate.common import distance_metrics, mesh_distances, read_mesh
-from eve3d.raycast import MeshRaycaster, seen_by
+from eve3d.raycast import MeshRaycaster, seen_counts
 from eve3d.scene import Eve3dError
 from eve3d.surface import sample_surface
+
+
+MAX_DRAWS = 8
+"""Batches of ``evaluate.samples`` drawn at most per surface while too few samples are kept."""
+
+
+def samples_where(mesh, keep, count: int, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """Up to ``count`` uniform samples of ``mesh`` that ``keep`` (points → bool) accepts,
+    drawn in batches of ``count`` (at most ``MAX_DRAWS``) so that a surface mostly outside
+    the kept region still gets enough; and the fraction of the area that is kept."""
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    kept, drawn = [], 0
+    for _ in range(MAX_DRAWS):
+        batch = sample_surface(v, f, count, rng)
+        kept.append(batch[keep(batch)])
+        drawn += count
+        if sum(map(len, kept)) >= count:
+            break
+    points = np.concatenate(kept)
+    return points[:count], len(points) / drawn
 
 
 def visible_surface_samples(gt_mesh, cameras, count: int, min_views: int,
                             rng: np.random.Generator) -> tuple[np.ndarray, float]:
     """Uniform samples of the GT surface that at least ``min_views`` cameras see, and the
     fraction of the GT's area they represent."""
-    pts = sample_surface(np.asarray(gt_mesh.vertices), np.asarray(gt_mesh.triangles), count, rng)
-    visible = seen_by(MeshRaycaster([gt_mesh]), cameras, pts, stop_at=min_views).sum(axis=1) >= min_views
-    return pts[visible], float(visible.mean())
+    caster = MeshRaycaster([gt_mesh])
+    return samples_where(gt_mesh, lambda p: seen_counts(caster, cameras, p, min_views) >= min_views, count, rng)
 
 
 def evaluate_synthetic(inputs: EvalInputs) -> dict:
     """The protocol of the module docstring; distances in scene units."""
-    s = inputs.settings
+    s, cameras = inputs.settings, inputs.scene.cameras
+    if s.min_views > len(cameras):
+        raise Eve3dError(f"evaluate.min_views: {s.min_views} cameras must see a GT point, the scene has {len(cameras)}")
     rng = np.random.default_rng(0)
     gt_mesh, recon_mesh = read_mesh(inputs.gt), read_mesh(inputs.reconstruction)
-    gt, visible_fraction = visible_surface_samples(gt_mesh, inputs.scene.cameras, s.samples, s.min_views, rng)
+    gt, visible_fraction = visible_surface_samples(gt_mesh, cameras, s.samples, s.min_views, rng)
     if not len(gt):
         raise Eve3dError(f"{inputs.gt}: no part of the GT mesh is seen by the cameras of {inputs.scene.root}; "
                          f"is it in the same frame as the poses?")
     lo, hi = gt.min(axis=0), gt.max(axis=0)
     diagonal = float(np.linalg.norm(hi - lo))
     if s.tau is not None:
-        tau, rule = float(s.tau), "given (evaluate.tau)"
+        tau, rule = float(s.tau), GIVEN_TAU
     else:
         tau, rule = s.tau_fraction * diagonal, f"{s.tau_fraction:g} x visible-GT bounding-box diagonal ({diagonal:.5g})"
-    recon = sample_surface(np.asarray(recon_mesh.vertices), np.asarray(recon_mesh.triangles), s.samples, rng)
-    inside = np.all((recon >= lo - tau) & (recon <= hi + tau), axis=1)
-    metrics = distance_metrics(mesh_distances(gt_mesh, recon[inside]), mesh_distances(recon_mesh, gt), tau)
-    return {"tau": tau, "tau_rule": rule, **metrics,
-            "n_recon": int(inside.sum()), "n_gt": int(len(gt)),
+    recon, inside_fraction = samples_where(recon_mesh, lambda p: np.all((p >= lo - tau) & (p <= hi + tau), axis=1),
+                                           s.samples, rng)
+    metrics = distance_metrics(mesh_distances(gt_mesh, recon), mesh_distances(recon_mesh, gt), tau)
+    return {"tau": tau, "tau_rule": rule, **metrics, "n_recon": int(len(recon)), "n_gt": int(len(gt)),
             "visible_gt_fraction": visible_fraction, "visible_rule": f"seen by at least {s.min_views} camera(s)",
             "crop": {"box_min": (lo - tau).tolist(), "box_max": (hi + tau).tolist(),
-                     "rule": "visible-GT bounding box grown by tau", "recon_samples_left_out": int((~inside).sum())}}
+                     "rule": "visible-GT bounding box grown by tau", "recon_area_fraction_left_out": 1 - inside_fraction}}

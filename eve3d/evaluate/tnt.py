@@ -25,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from eve3d.evaluate import EvalInputs
+from eve3d.evaluate import GIVEN_TAU, EvalInputs
 from eve3d.evaluate.common import fscore, nearest_distances, read_mesh
 from eve3d.scene import Eve3dError, Scene
 
@@ -43,7 +43,7 @@ COLOUR_RANGE = 3.0
 def scene_tau(name: str | None, tau: float | None) -> tuple[float, str]:
     """τ and how it was chosen: ``evaluate.tau`` when given, else the toolbox table."""
     if tau is not None:
-        return float(tau), "given (evaluate.tau)"
+        return float(tau), GIVEN_TAU
     if name not in TAU:
         raise Eve3dError(f"Tanks and Temples scene {name!r} has no τ in the toolbox table "
                          f"({', '.join(f'{k} {v}' for k, v in TAU.items())}); set `evaluate.tau`")
@@ -236,9 +236,6 @@ def evaluate_tnt(inputs: EvalInputs) -> dict:
 
     scene, settings = inputs.scene, inputs.settings
     extras = scene.extras
-    if extras.get("format") != "tnt":
-        raise Eve3dError(f"{scene.root}: the tnt protocol needs a Tanks and Temples dataset ({{Scene}}.ply, "
-                         f"{{Scene}}.json, {{Scene}}_trans.txt and {{Scene}}_COLMAP_SfM.log beside sparse/)")
     tau, tau_rule = scene_tau(extras.get("name"), settings.tau)
     reference = check_cameras(scene)
     volume = read_crop(extras["crop"])

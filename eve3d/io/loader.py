@@ -26,10 +26,6 @@ def has_poses(root: Path) -> bool:
     return (root / "cameras.npz").exists() or find_colmap_model(root) is not None
 
 
-FORMATS = ("colmap", "dtu", "tnt")
-"""Dataset formats, told apart by layout (``dataset_format``); generated scenes are COLMAP."""
-
-
 def dataset_format(root: Path) -> str:
     """``dtu`` (``cameras.npz``), ``tnt`` (a ``{Scene}_trans.txt`` beside the images) or
     ``colmap`` (a COLMAP model, or images that SfM will pose)."""

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
-from eve3d.config import resolve_config, scene_protocol, stage_settings
+from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_value, stage_settings
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
 
@@ -28,9 +28,13 @@ except Eve3dError as e:
 
 
 def scene_methods(scene):
-    """A scene's methods; a protocol that scores renderings (nvs) keeps the trained ones."""
-    methods = config["scenes"][scene].get("methods", config["methods"])
-    return [m for m in methods if m in TRAINED] if PROTOCOL[scene].scores == "model" else methods
+    """A scene's methods. A protocol that scores renderings (nvs) keeps the trained ones;
+    `oracle` (the exact depth of a GT mesh) runs only where there is a GT mesh."""
+    sc = config["scenes"][scene]
+    methods = sc.get("methods", config["methods"])
+    if PROTOCOL[scene].scores == "model":
+        methods = [m for m in methods if m in TRAINED]
+    return [m for m in methods if m != "oracle" or has_gt_mesh(sc)]
 
 
 METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
@@ -168,27 +172,28 @@ def mesh_args(wildcards):
 
 def evaluate_inputs(wildcards):
     """The method's reconstruction (mesh, or trained model for nvs), the posed dataset and
-    the protocol's ground truth."""
+    the ground-truth files the protocol names (eve3d.evaluate.PROTOCOLS)."""
     sc, protocol = scene_config(wildcards.scene), PROTOCOL[wildcards.scene]
     method_dir = f"{RESULTS}/{wildcards.scene}/{wildcards.method}"
     inputs = {"scene": posed_dataset(wildcards),
               "reconstruction": f"{method_dir}/mesh.ply" if protocol.scores == "mesh" else f"{method_dir}/point_cloud.ply"}
-    if protocol.name == "synthetic":
-        inputs["gt"] = gt_input(wildcards)
-    elif protocol.name == "dtu":
-        inputs.update(gt=sc["dtu"]["stl"], obs_mask=sc["dtu"]["obs_mask"], plane=sc["dtu"]["plane"])
+    for name, key in protocol.config_inputs.items():
+        inputs[name] = gt_input(wildcards) if key == "gt_mesh" else scene_value(sc, key)
     return inputs
+
+
+def evaluate_settings(scene):
+    """The `evaluate` section with the scene's own `evaluate` keys over it."""
+    return {**config["evaluate"], **scene_config(scene).get("evaluate", {})}
 
 
 def evaluate_args(wildcards, input):
     """The protocol, its inputs, and every `evaluate` key given in the config as the CLI
     flag of the same name (the defaults live in eve3d.evaluate.EvalSettings)."""
     protocol = PROTOCOL[wildcards.scene]
-    args = [f"--protocol {protocol.name}",
-            f"--{protocol.scores} {input.reconstruction}"]
-    if protocol.name == "synthetic":
-        args.append(f"--gt {gt_mesh(wildcards)}")
-    elif protocol.name == "dtu":
-        args.append(f"--gt {input.gt} --obs-mask {input.obs_mask} --plane {input.plane}")
-    args += [f"--{key.replace('_', '-')} {value}" for key, value in config["evaluate"].items() if value is not None]
+    args = [f"--protocol {protocol.name}", f"--{protocol.scores} {input.reconstruction}"]
+    for name, key in protocol.config_inputs.items():  # a generated GT mesh lies inside its dataset folder
+        args.append(f"--{name.replace('_', '-')} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
+    args += [f"--{key.replace('_', '-')} {value}" for key, value in evaluate_settings(wildcards.scene).items()
+             if value is not None]
     return " ".join(args)
