@@ -274,8 +274,9 @@ def bench_evaluate(meshes: list[tuple[str, str]] = (), scene=None, gt=None) -> l
 
 
 def format_evaluate_table(rows: list[dict]) -> str:
-    head = f"{'mesh':<34} {'triangles':>10} {'seconds':>8} {'peak MB':>8} {'precision':>9} {'recall':>7} {'F':>6}"
+    w = max(len(r["mesh"]) for r in rows)
+    head = f"{'mesh':<{w}} {'triangles':>10} {'seconds':>8} {'peak MB':>8} {'precision':>9} {'recall':>7} {'F':>6}"
     lines = [head, "-" * len(head)]
-    lines += [f"{r['mesh']:<34} {r['triangles']:>10,} {r['seconds']:>8.1f} {r['peak_mb']:>8.0f} {r['precision']:>9.4f} "
+    lines += [f"{r['mesh']:<{w}} {r['triangles']:>10,} {r['seconds']:>8.1f} {r['peak_mb']:>8.0f} {r['precision']:>9.4f} "
               f"{r['recall']:>7.4f} {r['fscore']:>6.4f}" for r in rows]
     return "\n".join(lines)
