@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -125,8 +126,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     if reconstruction is None:
         flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
         raise Eve3dError(f"the {protocol.name} protocol scores a {protocol.scores}: give {flag}")
-    settings = EvalSettings(tau=a.tau, tau_fraction=a.tau_fraction, min_views=a.min_views, samples=a.samples,
-                            dtu_density=a.dtu_density, dtu_max_dist=a.dtu_max_dist)
+    settings = EvalSettings(**{f.name: getattr(a, f.name) for f in dataclasses.fields(EvalSettings)})
     optional = lambda v: Path(v) if v else None  # noqa: E731
     inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
                         plane=optional(a.plane), settings=settings)

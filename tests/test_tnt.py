@@ -12,6 +12,7 @@ from eve3d.io import load_scene
 from eve3d.io.colmap import write_colmap
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.surface import sample_surface
+from eve3d.synth import _look_at
 
 
 def write_crop(path, polygon, axis_min, axis_max):
@@ -128,16 +129,6 @@ def apply(m, points):
     return points @ m[:3, :3].T + m[:3, 3]
 
 
-def look_at(centre, target):
-    """Camera-to-world rotation (columns: camera x, y, z in the world) of an OpenCV camera
-    at ``centre`` looking at ``target``, world z up."""
-    z = target - centre
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
-
-
 G = similarity(2.0, [0.3, -1.0, 0.5], 0.7, [1.0, -2.0, 0.5])
 """COLMAP frame → GT frame (``{Scene}_trans.txt``)."""
 S = similarity(1.05, [1.0, 0.4, -0.2], 0.4, [0.3, 0.2, -0.1])
@@ -197,7 +188,7 @@ def write_tnt_layout(root, name="Ignatius", n_log=20, gt_points=250_000):
     K = [[8.0, 0, 4.0], [0, 8.0, 3.0], [0, 0, 1]]
     cameras, log = [], []
     for i, c in enumerate(centres):
-        rot = look_at(c, target)                                     # camera-to-world, GT frame
+        rot = _look_at(c, target, np.array([0.0, 0.0, 1.0]))[0].T   # camera-to-world, GT frame
         c_ours = apply(S, c[None])[0] + rng.normal(0, CAMERA_NOISE * 1.05, 3)
         r_ours = S[:3, :3] @ rot / 1.05
         cameras.append(Camera(f"{i:03d}.png", 8, 6, K, r_ours.T, -r_ours.T @ c_ours))

@@ -20,6 +20,11 @@ from pathlib import Path
 from eve3d.scene import Eve3dError, Scene
 
 
+def cli_flag(name: str) -> str:
+    """The ``eve3d evaluate`` flag of an :class:`EvalSettings` or :class:`EvalInputs` field."""
+    return "--" + name.replace("_", "-")
+
+
 @dataclass
 class EvalSettings:
     """The ``evaluate`` section of the config (every default lives here)."""
@@ -43,7 +48,7 @@ class EvalSettings:
     """DTU: distances at or above this (mm) are left out of the means."""
 
     def __post_init__(self) -> None:
-        where = lambda key: f"evaluate.{key} (--{key.replace('_', '-')})"  # noqa: E731
+        where = lambda key: f"evaluate.{key} ({cli_flag(key)})"  # noqa: E731
         for key in ("tau", "tau_fraction", "dtu_density", "dtu_max_dist"):
             value = getattr(self, key)
             if value is not None and not value > 0:
@@ -95,7 +100,7 @@ class Protocol:
     def run(self, inputs: EvalInputs) -> dict:
         missing = [name for name in self.config_inputs if getattr(inputs, name) is None]
         if missing:
-            flags = ", ".join(f"--{name.replace('_', '-')}" for name in missing)
+            flags = ", ".join(map(cli_flag, missing))
             raise Eve3dError(f"the {self.name} protocol needs {', '.join(missing)} (eve3d evaluate {flags})")
         fmt = inputs.scene.extras.get("format")
         if self.formats and fmt not in self.formats:

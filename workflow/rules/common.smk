@@ -7,6 +7,7 @@ from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
 from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_value, stage_settings
+from eve3d.evaluate import cli_flag
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
 
@@ -193,7 +194,7 @@ def evaluate_args(wildcards, input):
     protocol = PROTOCOL[wildcards.scene]
     args = [f"--protocol {protocol.name}", f"--{protocol.scores} {input.reconstruction}"]
     for name, key in protocol.config_inputs.items():  # a generated GT mesh lies inside its dataset folder
-        args.append(f"--{name.replace('_', '-')} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
-    args += [f"--{key.replace('_', '-')} {value}" for key, value in evaluate_settings(wildcards.scene).items()
+        args.append(f"{cli_flag(name)} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
+    args += [f"{cli_flag(key)} {value}" for key, value in evaluate_settings(wildcards.scene).items()
              if value is not None]
     return " ".join(args)
