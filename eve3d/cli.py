@@ -83,8 +83,13 @@ def _cmd_joint(a: argparse.Namespace) -> None:
     from eve3d.config import stage_settings, training_config
     from eve3d.io import load_scene
     from eve3d.joint import JointSettings, train_joint
+    from eve3d.methods import method
 
-    settings = stage_settings(JointSettings, "joint", training_config(a.config, a.set), method=a.method)
+    config = training_config(a.config, a.set)
+    m = method(a.method, config["variants"], "--method")
+    if not m.trains:
+        raise Eve3dError(f"--method {m.name}: {m.summary}; it is not trained by the joint stage")
+    settings = stage_settings(JointSettings, "joint", config, overrides=m.settings, method=m.name)
     metrics = train_joint(load_scene(a.scene), Path(a.out), settings)
     print(f"training views: PSNR {metrics['train']['psnr']:.2f} dB; wrote {a.out}/point_cloud.ply "
           f"({metrics['gaussians']} Gaussians) and {a.out}/depth/")
@@ -297,7 +302,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_pretrain)
 
     s = sub.add_parser("joint", help="train a method's Gaussians and render its depth for meshing")
-    s.add_argument("--method", required=True, choices=["3dgs", "pgsr"])
+    from eve3d.methods import methods
+
+    s.add_argument("--method", required=True, help="a trained method: " + ", ".join(
+        n for n, m in methods().items() if m.trains) + ", or a variant the --config defines")
     _add_training_options(s)
     s.set_defaults(func=_cmd_joint)
 

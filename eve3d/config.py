@@ -135,7 +135,7 @@ def load_mapping(spec: str, option: str) -> dict:
 
 
 def training_config(spec: str | None = None, overrides: list[str] = ()) -> dict:
-    """The ``train``, ``pretrain`` and ``joint`` sections for a training CLI: the preset
+    """The ``train``, ``pretrain``, ``joint`` and ``variants`` sections for a training CLI: the preset
     (``cpu`` unless the config names one), then ``spec`` (a workflow config file, or an
     inline JSON/YAML mapping as the workflow passes it), then ``SECTION.KEY=VALUE``
     overrides (values parsed as YAML)."""
@@ -149,13 +149,14 @@ def training_config(spec: str | None = None, overrides: list[str] = ()) -> dict:
         for part in path[1:-1]:
             node = node.setdefault(part, {})
         node[path[-1]] = yaml.safe_load(value)
-    return {k: config.get(k) or {} for k in TRAINING_SECTIONS}
+    return {**{k: config.get(k) or {} for k in TRAINING_SECTIONS}, "variants": config.get("variants") or {}}
 
 
-def stage_settings(cls, section: str, config: dict, **fixed):
-    """Settings of a training stage: ``train`` merged under ``section``, plus ``fixed``."""
+def stage_settings(cls, section: str, config: dict, overrides: dict | None = None, **fixed):
+    """Settings of a training stage: ``train``, then ``section``, then ``overrides`` (a
+    method's settings), merged key by key, plus ``fixed``."""
     from eve3d.training import settings_from_dict
 
-    values = deep_merge(config.get("train") or {}, config.get(section) or {})
+    values = deep_merge(deep_merge(config.get("train") or {}, config.get(section) or {}), overrides or {})
     values.update(fixed)
     return settings_from_dict(cls, values, where=f"{section} (train + {section} sections)")

@@ -1,13 +1,12 @@
 """Joint stage (``eve3d joint``): train the Gaussians of one method and render its depth.
 
-Methods so far (Eve3D's prior terms come with the stereo priors):
-
-- ``3dgs``: the weakest baseline, photometric only (L_rgb), 3DGS densification by the
-  2D-mean gradient; meshed from the expected depth Σ w z / Σ w.
-- ``pgsr``: planar Gaussians (PGSR): L_rgb, the flattening loss on the smallest scale, the
-  single-view depth–normal consistency from ``dn_from``, the multi-view geometric and NCC
-  photometric losses over a neighbour view from ``mv_from``, AbsGS's split, optional
-  per-image exposure; meshed from the unbiased depth D = d / −(N·r).
+One loss, whose parts the settings switch on and off; the methods (``eve3d.methods``) are
+named settings of it. In full (PGSR): L_rgb, the flattening loss on the smallest scale, the
+single-view depth–normal consistency from ``dn_from``, the multi-view geometric and NCC
+photometric losses over a rendered neighbour view from ``mv_from``, AbsGS's split, optional
+per-image exposure; meshed from the unbiased depth D = d / −(N·r). With the planar and
+multi-view parts off and the plain split it is 3DGS, meshed from the expected depth
+Σ w z / Σ w.
 
 Writes ``point_cloud.ply``, ``depth/{view}.npz`` (depth, confidence = rendered alpha,
 camera-space normal; at the dataset's full resolution, with PNG previews), ``metrics.json``
@@ -16,7 +15,7 @@ and ``previews/``.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,12 +31,15 @@ from eve3d.render import RenderOutput
 from eve3d.scene import Eve3dError, Scene
 from eve3d.training import Trainer, TrainSettings, View, initial_points
 
-METHODS = ("3dgs", "pgsr")
+DEPTHS = ("depth", "depth_expected")
 
 
 @dataclass
 class JointSettings(TrainSettings):
     method: str = "pgsr"
+    """The method's name (``eve3d.methods``): recorded, and names the progress bar."""
+    depth: str = "depth"
+    """Depth rendered for meshing: ``depth`` (PGSR's unbiased depth) or ``depth_expected``."""
     scale_weight: float = 100.0
     """Flattening loss: weight × mean(min scale of the visible Gaussians)."""
     dn_weight: float = 0.015
@@ -59,8 +61,8 @@ class JointSettings(TrainSettings):
     init_random_points: int = 100_000
 
 
-def pgsr_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]]):
-    """The loss function of the ``pgsr`` method (see the module docstring)."""
+def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]]):
+    """The loss function of the joint stage (see the module docstring)."""
     train_set = set(trainer.train_ids)
 
     def terms(step: int, view: View, out: RenderOutput) -> dict[str, torch.Tensor]:
@@ -109,23 +111,16 @@ def export_depths(trainer: Trainer, scene: Scene, out_dir: Path, kind: str) -> N
 def train_joint(scene: Scene, out_dir: Path, settings: JointSettings) -> dict:
     """Run the stage for ``settings.method``; returns the metrics it writes."""
     s = settings
-    if s.method not in METHODS:
-        raise Eve3dError(f"joint: method {s.method!r} unknown; choose one of {', '.join(METHODS)}")
-    if s.method == "3dgs":  # 3DGS splits by the plain 2D-mean gradient
-        s = replace(s, densify=replace(s.densify, absgrad=False))
+    if s.depth not in DEPTHS:
+        raise Eve3dError(f"joint.depth: {s.depth!r} is not one of {', '.join(DEPTHS)}")
     out_dir = Path(out_dir)
     trainer = Trainer(scene, s, out_dir, s.method)
     points, colors = initial_points(scene, s.init_random_points, np.random.default_rng(s.seed))
     trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree))
-    if s.method == "pgsr":
-        if s.exposure:
-            trainer.add_extra("exposure", torch.eye(3, 4).repeat(len(trainer.views), 1, 1), s.exposure_lr)
-        loss = pgsr_terms(trainer, s, select_neighbours(scene, s.neighbours))
-    else:
-        loss = trainer.photometric_terms
-
-    trainer.run(loss)
-    depth_kind = "depth" if s.method == "pgsr" else "depth_expected"
+    if s.exposure:
+        trainer.add_extra("exposure", torch.eye(3, 4).repeat(len(trainer.views), 1, 1), s.exposure_lr)
+    trainer.run(loss_terms(trainer, s, select_neighbours(scene, s.neighbours)))
+    depth_kind = s.depth
     trainer.model.save_ply(out_dir / "point_cloud.ply")
     export_depths(trainer, scene, out_dir / "depth", depth_kind)
     metrics = {"method": s.method, "train": trainer.evaluate(trainer.train_ids),

@@ -21,6 +21,28 @@ def object_scene(object_dataset):
     return load_scene(object_dataset)
 
 
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory) -> Path:
+    """An 8-view 64×48 object scene: small enough for training tests."""
+    return generate("object", tmp_path_factory.mktemp("tiny") / "object", views=8, width=64, height=48)
+
+
+@pytest.fixture(scope="session")
+def tiny_scene(tiny_dataset):
+    return load_scene(tiny_dataset)
+
+
+@pytest.fixture
+def one_thread():
+    """Single-threaded rasterisation: gradient sums in a fixed order, bit-reproducible."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     """Run ``python -m eve3d ARGS`` in a fresh process, as the workflow does."""
     return subprocess.run([sys.executable, "-m", "eve3d", *map(str, args)], capture_output=True, text=True,

@@ -12,24 +12,7 @@ from eve3d.joint import JointSettings, train_joint
 from eve3d.losses import depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Camera
-from eve3d.synth import generate
 from eve3d.training import NonFiniteLoss, Trainer, TrainSettings, settings_from_dict
-
-
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    from eve3d.io import load_scene
-
-    return load_scene(generate("object", tmp_path_factory.mktemp("tiny") / "object", views=8, width=64, height=48))
-
-
-@pytest.fixture
-def one_thread():
-    """Single-threaded rasterisation: gradient sums in a fixed order, bit-reproducible."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def constructed_model():

@@ -20,24 +20,32 @@ config.update(_resolved)
 
 RESULTS = config["results"]
 SCENES = list(config["scenes"])
-from eve3d.joint import METHODS as TRAINED  # methods whose Gaussians the joint stage trains
+from eve3d.methods import methods
 
 try:
     PROTOCOL = {s: scene_protocol(s, config["scenes"][s]) for s in SCENES}
+    METHOD = methods(config["variants"])  # the registry with the config's variants
 except Eve3dError as e:
     raise WorkflowError(f"config: {e}")
+TRAINED = [name for name, m in METHOD.items() if m.trains]  # methods the joint stage trains
 
 
 def scene_methods(scene):
     """A scene's methods. A protocol that scores renderings (nvs) keeps the trained ones;
     `oracle` (the exact depth of a GT mesh) runs only where there is a GT mesh."""
     sc = config["scenes"][scene]
-    methods = sc.get("methods", config["methods"])
+    names = sc.get("methods", config["methods"])
     if PROTOCOL[scene].scores == "model":
-        methods = [m for m in methods if m in TRAINED]
-    return [m for m in methods if m != "oracle" or has_gt_mesh(sc)]
+        names = [m for m in names if METHOD[m].trains]
+    return [m for m in names if METHOD[m].fuses != "oracle" or has_gt_mesh(sc)]
 
 
+for _where, _names in [("methods", config["methods"])] + [
+        (f"scenes.{s}.methods", config["scenes"][s].get("methods", [])) for s in SCENES]:
+    _unknown = [m for m in _names if m not in METHOD]
+    if _unknown:
+        raise WorkflowError(f"config: {_where}: unknown method(s) {', '.join(_unknown)} (methods: "
+                            f"{', '.join(METHOD)}; define others under variants:)")
 METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
 # The training sections are checked now, so that a typo stops the workflow before any job runs.
 try:
@@ -45,7 +53,8 @@ try:
     from eve3d.pretrain import PretrainSettings
 
     stage_settings(PretrainSettings, "pretrain", config)
-    stage_settings(JointSettings, "joint", config)
+    for _name in TRAINED:
+        stage_settings(JointSettings, "joint", config, overrides=METHOD[_name].settings)
     if config["stereo"]["backend"] == "onnx":
         from eve3d.priors.onnx import OnnxSpec
         from eve3d.training import settings_from_dict
@@ -104,12 +113,18 @@ def gt_input(wildcards):
     return raw_dataset(wildcards) if "synthetic" in scene_config(wildcards.scene) else gt_mesh(wildcards)
 
 
+def stereo_priors(scene):
+    """The folder of the stereo priors that methods use (backend stereo.backend)."""
+    return f"{RESULTS}/{scene}/priors/{config['stereo']['backend']}"
+
+
 def depth_source(wildcards):
     """Per-view depth maps that a method's mesh fuses."""
-    if wildcards.method == "oracle":
+    fuses = METHOD[wildcards.method].fuses
+    if fuses == "oracle":
         return f"{RESULTS}/{wildcards.scene}/priors/oracle"
-    if wildcards.method == "stereo-tsdf":  # the GS2Mesh-style baseline: fuse the priors as they are
-        return f"{RESULTS}/{wildcards.scene}/priors/{config['stereo']['backend']}"
+    if fuses == "priors":  # the GS2Mesh-style baseline: fuse the priors as they are
+        return stereo_priors(wildcards.scene)
     return f"{RESULTS}/{wildcards.scene}/{wildcards.method}/depth"
 
 
@@ -133,15 +148,18 @@ def stereo_depth_args(wildcards, input):
             + (f" --wls --wls-lambda {s['wls_lambda']} --wls-sigma {s['wls_sigma']}" if s["wls"] else ""))
 
 
-def training_config(stage, scene=None):
+def training_config(stage, scene=None, method=None):
     """What a training stage's job needs of the config, inline: a change reruns that stage
-    only (a joint setting does not rerun pretrain and the stereo stages after it). The
-    scene's protocol adds what it asks of the joint stage (nvs: held-out views)."""
+    only (a joint setting does not rerun pretrain and the stereo stages after it; a
+    variant's settings rerun that variant only). The scene's protocol adds what it asks of
+    the joint stage (nvs: held-out views)."""
     section = dict(config[stage])
     if stage == "joint" and scene is not None:
         section.update(PROTOCOL[scene].joint_settings)
-    return shlex.quote(json.dumps({"preset": config["preset"], "train": config["train"], stage: section},
-                                  sort_keys=True))
+    job = {"preset": config["preset"], "train": config["train"], stage: section}
+    if method in config["variants"]:
+        job["variants"] = {method: config["variants"][method]}
+    return shlex.quote(json.dumps(job, sort_keys=True))
 
 
 def metrics_files():
@@ -151,7 +169,7 @@ def metrics_files():
 def pretrain_metrics():
     """Held-out view metrics of the pretrain stage, for scenes where a method trains or uses
     stereo priors (rendered by the pretrained model)."""
-    users = set(TRAINED) | {"stereo-tsdf"}
+    users = {name for name, m in METHOD.items() if m.trains or m.needs_priors}
     return [f"{RESULTS}/{s}/pretrain/metrics.json" for s in SCENES if set(scene_methods(s)) & users]
 
 

@@ -22,20 +22,20 @@ rule pretrain:
 
 rule joint:
     input:
-        posed_dataset,
+        scene=posed_dataset,
     output:
         model=f"{RESULTS}/{{scene}}/{{method}}/point_cloud.ply",
         depth=directory(f"{RESULTS}/{{scene}}/{{method}}/depth"),
         metrics=f"{RESULTS}/{{scene}}/{{method}}/train_metrics.json",
     wildcard_constraints:
-        method="|".join(TRAINED),
+        method="|".join(map(re.escape, TRAINED)),
     params:
-        config=lambda wc: training_config("joint", wc.scene),
+        config=lambda wc: training_config("joint", wc.scene, wc.method),
     log:
         f"{RESULTS}/logs/{{scene}}/joint_{{method}}.log",
     threads: workflow.cores
     conda:
         CONDA_ENV
     shell:
-        "OMP_NUM_THREADS={threads} {EVE3D} joint --method {wildcards.method} --scene {input} --out {RESULTS}/{wildcards.scene}/{wildcards.method}"
-        " --config {params.config} > {log} 2>&1"
+        "OMP_NUM_THREADS={threads} {EVE3D} joint --method {wildcards.method} --scene {input.scene}"
+        " --out {RESULTS}/{wildcards.scene}/{wildcards.method} --config {params.config} > {log} 2>&1"

@@ -1,0 +1,111 @@
+"""Methods: the one registry of reconstruction methods that the CLI, the config check and
+the workflow read.
+
+A method either fuses depth maps that another stage made (``oracle``: the exact depth of a
+GT mesh; ``stereo-tsdf``: the stereo priors as they are), or is trained by the joint stage.
+A trained method is nothing but settings of :class:`eve3d.joint.JointSettings` over the
+config's ``train`` and ``joint`` sections: the joint stage has one loss whose parts the
+settings switch on and off, so a new variant is a few lines of config, not a new branch::
+
+    variants:
+      eve3d-no-lba: {method: eve3d, lba_weight: 0}
+
+A variant names the method it starts from and the settings it changes; it gets its own
+results folder and summary row. A variant under a registered name (no ``method`` key)
+changes that method's settings (the ``cpu`` preset scales ``eve3d-fast`` down this way).
+"""
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from eve3d.scene import Eve3dError
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    summary: str
+    fuses: str | None = None
+    """Depth fused as it is, without training: ``oracle`` or ``priors``; None = trained."""
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    """Joint-stage settings (``eve3d.joint.JointSettings`` keys) over the config's sections."""
+
+    @property
+    def trains(self) -> bool:
+        return self.fuses is None
+
+    @property
+    def needs_priors(self) -> bool:
+        """Whether the method reads the stereo priors (``priors/{stereo.backend}``)."""
+        return self.fuses == "priors" or self.settings.get("priors", "none") != "none" or \
+            self.settings.get("init") == "priors"
+
+
+# The PGSR loss with its planar and multi-view parts switched off is 3DGS's L_rgb.
+_PHOTOMETRIC_ONLY = {"scale_weight": 0.0, "dn_weight": 0.0, "geo_weight": 0.0, "ncc_weight": 0.0, "exposure": False}
+
+REGISTRY: dict[str, Method] = {m.name: m for m in (
+    Method("oracle", "TSDF of the exact depth of the GT mesh (an upper bound; scenes with a GT mesh)",
+           fuses="oracle"),
+    Method("stereo-tsdf", "TSDF of the stereo priors as they are (the GS2Mesh-style baseline)", fuses="priors"),
+    Method("3dgs", "3DGS: L_rgb only, split by the plain 2D-mean gradient, meshed from the expected depth",
+           settings={**_PHOTOMETRIC_ONLY, "depth": "depth_expected", "densify": {"absgrad": False}}),
+    Method("pgsr", "PGSR: planar Gaussians, flattening, depth–normal and multi-view (rendered neighbour) losses"),
+)}
+
+
+def _merge(base: Mapping, over: Mapping) -> dict:
+    out = copy.deepcopy(dict(base))
+    for key, value in over.items():
+        out[key] = _merge(out[key], value) if isinstance(value, Mapping) and isinstance(out.get(key), Mapping) \
+            else copy.deepcopy(value)
+    return out
+
+
+def methods(variants: Mapping[str, Mapping] | None = None) -> dict[str, Method]:
+    """The registry with the config's ``variants`` applied (new names added, registered
+    names' settings changed); an error names the variant that is wrong."""
+    out = dict(REGISTRY)
+    pending = dict(variants or {})
+    while pending:  # a variant may start from another variant
+        progress = False
+        for name, spec in list(pending.items()):
+            if not isinstance(spec, Mapping):
+                raise Eve3dError(f"variants.{name}: expected a mapping of joint settings, got {spec!r}")
+            base_name = spec.get("method", name if name in REGISTRY else None)
+            if base_name == name and name not in REGISTRY:
+                raise Eve3dError(f"variants.{name}: a variant cannot start from itself")
+            if base_name is None:
+                raise Eve3dError(f"variants.{name}: say which method it starts from ({{method: NAME, ...}}; "
+                                 f"methods: {', '.join(out)})")
+            if base_name in pending and base_name != name:
+                continue
+            if base_name not in out:
+                raise Eve3dError(f"variants.{name}.method: unknown method {base_name!r} (methods: {', '.join(out)})")
+            base = out[base_name]
+            changes = {k: v for k, v in spec.items() if k != "method"}
+            if not base.trains and changes:
+                raise Eve3dError(f"variants.{name}: {base_name} is not trained, it has no settings to change")
+            summary = base.summary if name == base_name else f"{base_name} with {_describe(changes)}"
+            out[name] = Method(name, summary, base.fuses, _merge(base.settings, changes))
+            del pending[name]
+            progress = True
+        if not progress:
+            raise Eve3dError(f"variants: {', '.join(pending)} start from one another in a cycle")
+    return out
+
+
+def _describe(changes: Mapping) -> str:
+    return ", ".join(f"{k}={v}" for k, v in changes.items()) or "no changes"
+
+
+def method(name: str, variants: Mapping[str, Mapping] | None = None, where: str = "method") -> Method:
+    """One method by name; an error lists the known ones."""
+    known = methods(variants)
+    if name not in known:
+        raise Eve3dError(f"{where}: unknown method {name!r} (methods: {', '.join(known)}; "
+                         f"define others under variants:)")
+    return known[name]
