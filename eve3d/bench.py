@@ -280,3 +280,78 @@ def format_evaluate_table(rows: list[dict]) -> str:
     lines += [f"{r['mesh']:<{w}} {r['triangles']:>10,} {r['seconds']:>8.1f} {r['peak_mb']:>8.0f} {r['precision']:>9.4f} "
               f"{r['recall']:>7.4f} {r['fscore']:>6.4f}" for r in rows]
     return "\n".join(lines)
+
+
+def _stage_seconds(path) -> float | None:
+    """Wall seconds from a Snakemake benchmark file (None when the stage did not run here)."""
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        return None
+    rows = path.read_text().splitlines()
+    return float(rows[1].split("\t")[0]) if len(rows) > 1 else None
+
+
+def methods_report(config: dict) -> dict:
+    """The table of ``eve3d bench methods`` from a finished workflow run of ``config``
+    (resolved): per scene and method the synthetic protocol's scores and the wall time of
+    the method's own stages (joint + mesh; the stages the priors share are listed per
+    scene), the means over scenes, and per scene the priors' accuracy against the oracle
+    depth: D* (``priors/{backend}``) and every learnable method's final D̂."""
+    from pathlib import Path
+
+    from eve3d.methods import methods
+
+    results, backend = Path(config["results"]), config["stereo"]["backend"]
+    known = methods(config.get("variants"))
+    rows, shared, priors = [], {}, []
+    for scene, sc in config["scenes"].items():
+        bench = results / "benchmarks" / scene
+        for name in sc.get("methods", config["methods"]):
+            path = results / scene / name / "metrics.json"
+            if not path.is_file():
+                continue
+            m = json.loads(path.read_text())
+            stages = [bench / f"mesh_{name}.tsv"] + ([bench / f"joint_{name}.tsv"] if known[name].trains else [])
+            times = [_stage_seconds(p) for p in stages]
+            rows.append({"scene": scene, "method": name, **{k: m.get(k) for k in (
+                "chamfer", "precision", "recall", "fscore")},
+                "seconds": None if None in times else sum(times)})
+        shared[scene] = {stage: _stage_seconds(bench / f"{stage}.tsv")
+                         for stage in ("pretrain", "stereo_render", f"stereo_depth_{backend}")}
+        oracle = results / scene / "priors" / "oracle"
+        if oracle.is_dir():
+            star = results / scene / "priors" / backend
+            if star.is_dir():
+                priors.append({**prior_accuracy(star, oracle, scene), "priors": f"D* ({backend})"})
+            for name in sc.get("methods", config["methods"]):
+                learned = results / scene / name / "priors"
+                if learned.is_dir():
+                    priors.append({**prior_accuracy(learned, oracle, scene), "priors": f"D̂ of {name}"})
+    means = []
+    for name in dict.fromkeys(r["method"] for r in rows):
+        mine = [r for r in rows if r["method"] == name]
+        mean = lambda k: (float(np.mean([r[k] for r in mine])) if all(r[k] is not None for r in mine)  # noqa: E731
+                          else None)
+        means.append({"scene": f"mean of {len(mine)}", "method": name,
+                      **{k: mean(k) for k in ("chamfer", "precision", "recall", "fscore", "seconds")}})
+    return {"rows": rows, "means": means, "shared_seconds": shared, "priors": priors}
+
+
+def format_methods_report(report: dict) -> str:
+    cell = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
+    head = f"{'scene':<22} {'method':<18} {'chamfer':>9} {'precision':>9} {'recall':>7} {'F':>7} {'seconds':>8}"
+    lines = [head, "-" * len(head)]
+    for r in report["rows"] + report["means"]:
+        lines.append(f"{r['scene']:<22} {r['method']:<18} {cell(r['chamfer'], '9.5f')} {cell(r['precision'], '9.4f')} "
+                     f"{cell(r['recall'], '7.4f')} {cell(r['fscore'], '7.4f')} {cell(r['seconds'], '8.0f')}")
+    lines += ["", "seconds = the method's own stages (joint + mesh); shared by every method that uses the priors:"]
+    for scene, stages in report["shared_seconds"].items():
+        lines.append(f"  {scene}: " + ", ".join(f"{k} {cell(v, '.0f')} s" for k, v in stages.items()))
+    if report["priors"]:
+        lines += ["", "priors against the exact depth, on their confident pixels",
+                  f"{'scene':<22} {'priors':<26} {'median rel. error':>17} {'density':>8}"]
+        lines += [f"{r['data']:<22} {r['priors']:<26} {r['median_rel_error'] * 100:15.2f} % {r['density']:8.3f}"
+                  for r in report["priors"]]
+    return "\n".join(lines)

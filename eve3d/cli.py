@@ -90,7 +90,7 @@ def _cmd_joint(a: argparse.Namespace) -> None:
     if not m.trains:
         raise Eve3dError(f"--method {m.name}: {m.summary}; it is not trained by the joint stage")
     settings = stage_settings(JointSettings, "joint", config, overrides=m.settings, method=m.name)
-    metrics = train_joint(load_scene(a.scene), Path(a.out), settings)
+    metrics = train_joint(load_scene(a.scene), Path(a.out), settings, Path(a.priors) if a.priors else None)
     print(f"training views: PSNR {metrics['train']['psnr']:.2f} dB; wrote {a.out}/point_cloud.ply "
           f"({metrics['gaussians']} Gaussians) and {a.out}/depth/")
 
@@ -184,6 +184,22 @@ def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
         raise Eve3dError("--meshes needs --scene (the cameras) and --gt (the GT mesh)")
     rows = bench.bench_evaluate([("/".join(Path(m).parts[-3:]), str(m)) for m in a.meshes], a.scene, a.gt)
     print(json.dumps(rows, indent=2) if a.json else bench.format_evaluate_table(rows))
+
+
+def _cmd_bench_methods(a: argparse.Namespace) -> None:
+    import subprocess
+
+    from eve3d import bench
+    from eve3d.config import REPO, load_config
+
+    config = load_config(a.config)
+    if not a.report_only:
+        cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--configfile", a.config,
+               "--replace-workflow-config", f"-c{a.cores}", "--quiet", "rules", "progress"]
+        if subprocess.run(cmd).returncode != 0:
+            raise Eve3dError(f"the workflow of {a.config} failed (its logs: {config['results']}/logs/)")
+    report = bench.methods_report(config)
+    print(json.dumps(report, indent=2) if a.json else bench.format_methods_report(report))
 
 
 def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:
@@ -306,6 +322,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s.add_argument("--method", required=True, help="a trained method: " + ", ".join(
         n for n, m in methods().items() if m.trains) + ", or a variant the --config defines")
+    s.add_argument("--priors", help="the stereo priors (results/SCENE/priors/BACKEND) of a method that uses them")
     _add_training_options(s)
     s.set_defaults(func=_cmd_joint)
 
@@ -379,6 +396,13 @@ def _add_bench_parser(sub) -> None:
     ev.add_argument("--gt", help="GT mesh of the given meshes")
     ev.add_argument("--json", action="store_true", help="machine-readable output")
     ev.set_defaults(func=_cmd_bench_evaluate)
+    me = what.add_parser("methods", help="run every method on the generated object and room (Snakemake) and print "
+                                         "scores, times and the priors' accuracy")
+    me.add_argument("--config", default="config/bench/methods.yaml", help="workflow config of the benchmark")
+    me.add_argument("--cores", type=int, default=2)
+    me.add_argument("--report-only", action="store_true", help="print the table of a finished run without running")
+    me.add_argument("--json", action="store_true", help="machine-readable output")
+    me.set_defaults(func=_cmd_bench_methods)
 
 
 def main(argv: list[str] | None = None) -> int:

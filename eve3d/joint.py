@@ -15,6 +15,7 @@ and ``previews/``.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -22,16 +23,19 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from eve3d.fileio import atomic_dir, atomic_path
+from eve3d.fileio import atomic_dir, atomic_path, write_image
 from eve3d.gaussians import GaussianModel
-from eve3d.losses import depth_normal_loss, forward_backward_error, geometric_loss, ncc_loss, rgb_loss
+from eve3d.losses import (depth_normal_loss, depth_to_normal, depth_to_points, forward_backward_error, geometric_loss,
+                          ncc_loss, rgb_loss)
 from eve3d.maps import save_maps
 from eve3d.neighbours import select_neighbours
+from eve3d.priors.learnable import Priors, comparison_preview, filled_log_depth, load_priors, prior_points
 from eve3d.render import RenderOutput
+from eve3d.render.projection import CameraTensors
 from eve3d.scene import Eve3dError, Scene
 from eve3d.training import Trainer, TrainSettings, View, initial_points
 
-DEPTHS = ("depth", "depth_expected")
+CHOICES = {"depth": ("depth", "depth_expected"), "init": ("sparse", "priors"), "priors": ("none", "fixed", "learnable")}
 
 
 @dataclass
@@ -59,9 +63,101 @@ class JointSettings(TrainSettings):
     """Learn a 3×4 colour transform per training image (PGSR's exposure compensation)."""
     exposure_lr: float = 1e-3
     init_random_points: int = 100_000
+    init: str = "sparse"
+    """Initial Gaussians: ``sparse`` (the SfM points; random points without them) or
+    ``priors`` (points back-projected from confident prior depths, Eve3D)."""
+    init_prior_points: int = 500_000
+    """Points drawn for ``init: priors`` (the paper: 500k on DTU, 1M on T&T)."""
+    priors: str = "none"
+    """Stereo priors: ``none``; ``fixed`` (D* is the target of L_prior and the neighbours'
+    depth in the LBA); ``learnable`` (D̂ per view, initialised from D*: Eve3D)."""
+    prior_weight: float = 0.05
+    """λ_prior: |D_prior − D| + ``prior_normal_weight`` · (1 − N_prior·N) on confident pixels."""
+    prior_normal_weight: float = 1.0
+    prior_normal_span: int = 1
+    """N_prior from central differences of the prior depth over ±span pixels (1 = adjacent
+    pixels; wider averages out the per-pixel noise of a matcher like SGBM)."""
+    prior_from: int = 500
+    """First step of every prior term."""
+    joint_from: int = 7000
+    """T_joint: L_prior switches from D* to D̂, L_pull starts, the LBA's reference becomes the
+    rendered depth."""
+    pull_weight: float = 0.05
+    """λ_pull: |D̂ − sg(D)| on pixels M^c does not trust."""
+    lba_weight: float = 0.15
+    """λ_lba: (geometric + photometric) averaged over the ``neighbours`` best views."""
+    prior_lr: float = 1e-4
+    """Adam step of log D̂ (a relative change of depth: the same for every scene scale)."""
+    consistent_views: int = 2
+    """M^c update: confident where the prior passes the geometric check in this many neighbours."""
+
+    def __post_init__(self) -> None:
+        for key, allowed in CHOICES.items():
+            if getattr(self, key) not in allowed:
+                raise Eve3dError(f"joint.{key}: {getattr(self, key)!r} is not one of {', '.join(allowed)}")
 
 
-def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]]):
+def multiview_pair(ref: View, nbr: View, depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,
+                   nbr_depth: torch.Tensor, mask: torch.Tensor, s: JointSettings, generator: torch.Generator,
+                   with_ncc: bool = True) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None]:
+    """PGSR's multi-view terms for one reference–neighbour pair, shared by PGSR's loss (the
+    neighbour's depth rendered) and Eve3D's LBA (the neighbour's prior D̂_n). ``depth``,
+    ``normal`` and ``distance`` are the reference's depth and plane (rendered, or of the
+    reference prior). Returns the geometric term mean(exp(−φ)·φ) over the pixels of
+    ``mask`` whose forward–backward error φ is below ``mv_threshold``, the photometric
+    term 1 − NCC of ``ncc_patch`` patches warped by the plane-induced homography at
+    ``ncc_pixels`` of them drawn at random, as the sum of its exp(−φ)-weighted values and
+    the count of pixels where it is defined (None when none is drawn)."""
+    phi, defined = forward_backward_error(depth, nbr_depth, ref.cam, nbr.cam)
+    geo, valid = geometric_loss(phi, defined & mask, s.mv_threshold)
+    idx = valid.flatten().nonzero().squeeze(1)
+    ncc_term = None
+    if len(idx) and with_ncc:  # (sum, count) apart: PGSR scales the sum before dividing
+        pick = idx[torch.randperm(len(idx), generator=generator)[:s.ncc_pixels].to(idx.device)]
+        pixels = torch.stack([pick // ref.cam.width, pick % ref.cam.width], -1)
+        ncc, ok = ncc_loss(ref.image, nbr.image, ref.cam, nbr.cam, normal, distance, pixels, s.ncc_patch)
+        w = torch.exp(-phi.flatten()[pick]).detach() * ok
+        ncc_term = (ncc * w).sum(), ok.sum().clamp_min(1)
+    return geo, ncc_term
+
+
+def prior_plane(depth: torch.Tensor, view: View, span: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
+    """Normal (from the depth's finite differences over ±``span`` pixels, facing the camera;
+    0 on the border) and plane distance d = −N·X of a depth map, for the homography of a
+    prior reference."""
+    normal = depth_to_normal(depth, view.cam, span)
+    return normal, -(normal * depth_to_points(depth, view.cam)).sum(-1)
+
+
+class PriorState:
+    """The priors inside training: D*, the confidence M^c (a checkpointed buffer) and, for
+    ``priors: learnable``, the log-depth D̂ of every view as its own parameter."""
+
+    def __init__(self, trainer: Trainer, priors: Priors, s: JointSettings):
+        self.trainer, self.s, self.star = trainer, s, priors
+        self.confidence = priors.confidence.clone()
+        trainer.buffers["prior_confidence"] = self.confidence
+        self.learnable = s.priors == "learnable"
+        self.log_depth = [trainer.add_extra(f"prior_log_depth/{i}", filled_log_depth(d), s.prior_lr)
+                          for i, d in enumerate(priors.depth)] if self.learnable else []
+
+    def depth(self, i: int) -> torch.Tensor:
+        """D̂_i (learnable) or D*_i (fixed)."""
+        return torch.exp(self.log_depth[i]) if self.learnable else self.star.depth[i]
+
+    @torch.no_grad()
+    def update_confidence(self, i: int, neighbours: list[View]) -> None:
+        """M^c_i ← the stereo gave a depth there, and D_prior,i passes the forward–backward
+        check (φ < ``mv_threshold``) against at least ``consistent_views`` neighbours' priors."""
+        ref, d = self.trainer.views[i], self.depth(i)
+        passed = torch.zeros_like(d, dtype=torch.int32)
+        for nbr in neighbours:
+            phi, defined = forward_backward_error(d, self.depth(nbr.index), ref.cam, nbr.cam)
+            passed += (defined & (phi < self.s.mv_threshold)).int()
+        self.confidence[i] = (self.star.depth[i] > 0) & (passed >= self.s.consistent_views)
+
+
+def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None):
     """The loss function of the joint stage (see the module docstring)."""
     train_set = set(trainer.train_ids)
 
@@ -81,20 +177,77 @@ def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]]):
         if step >= s.mv_from and candidates and (s.geo_weight or s.ncc_weight):
             nbr = trainer.views[candidates[int(torch.randint(len(candidates), (1,), generator=trainer.generator))]]
             out_n = trainer.render(nbr, step)
-            phi, defined = forward_backward_error(out.depth, out_n.depth, view.cam, nbr.cam)
-            geo, valid = geometric_loss(phi, defined & covered, s.mv_threshold)
+            geo, ncc = multiview_pair(view, nbr, out.depth, out.normal, out.distance, out_n.depth, covered, s,
+                                      trainer.generator, with_ncc=bool(s.ncc_weight))
             t["mv_geo"] = s.geo_weight * geo
-            idx = valid.flatten().nonzero().squeeze(1)
-            if len(idx) and s.ncc_weight:
-                pick = idx[torch.randperm(len(idx), generator=trainer.generator)[:s.ncc_pixels].to(idx.device)]
-                pixels = torch.stack([pick // view.cam.width, pick % view.cam.width], -1)
-                ncc, ok = ncc_loss(view.image, nbr.image, view.cam, nbr.cam, out.normal, out.distance, pixels,
-                                   s.ncc_patch)
-                w = torch.exp(-phi.flatten()[pick]).detach() * ok
-                t["mv_ncc"] = s.ncc_weight * (ncc * w).sum() / ok.sum().clamp_min(1)
+            if ncc is not None:
+                t["mv_ncc"] = s.ncc_weight * ncc[0] / ncc[1]
+        if priors is not None and step >= s.prior_from:
+            t.update(prior_terms(step, view, out, covered, [trainer.views[j] for j in candidates], priors, s,
+                                 trainer.generator))
         return t
 
     return terms
+
+
+def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor, neighbours: list[View],
+                priors: PriorState, s: JointSettings, generator: torch.Generator) -> dict[str, torch.Tensor]:
+    """Eve3D's terms (DESIGN §3). Before T_joint (``joint_from``): L_prior towards the fixed
+    D*, and the LBA among the priors (reference D̂_i against the neighbours' D̂_n: a
+    consistent initialisation). From T_joint: L_prior towards D̂_i, L_pull of D̂_i towards
+    the rendered depth where M^c is not confident, and the LBA of the rendered depth
+    against the neighbours' D̂_n (no neighbour is rendered); gradients reach the
+    Gaussians and every D̂ involved. The LBA's check updates M^c."""
+    t: dict[str, torch.Tensor] = {}
+    i, joint = view.index, step >= s.joint_from
+    confident = priors.confidence[i] & covered
+    target = priors.depth(i) if joint else priors.star.depth[i]
+    if s.prior_weight and confident.any():
+        target_normal = depth_to_normal(target, view.cam, s.prior_normal_span) if joint else priors.star.normal[i]
+        normal = torch.nn.functional.normalize(out.normal, dim=-1)
+        depth_term = ((target - out.depth).abs() * confident).sum() / confident.sum()
+        on_normal = confident & (target_normal.norm(dim=-1) > 0)
+        normal_term = ((1 - (target_normal * normal).sum(-1)) * on_normal).sum() / on_normal.sum().clamp_min(1)
+        t["prior"] = s.prior_weight * (depth_term + s.prior_normal_weight * normal_term)
+    unconfident = ~priors.confidence[i] & covered
+    if priors.learnable and joint and s.pull_weight and unconfident.any():
+        pull = (priors.depth(i) - out.depth.detach()).abs() * unconfident
+        t["pull"] = s.pull_weight * pull.sum() / unconfident.sum()
+    neighbours = neighbours[:s.neighbours]
+    if s.lba_weight and neighbours and (joint or priors.learnable):
+        if joint:  # the rendered depth and plane against the neighbours' priors
+            depth, normal, distance, mask = out.depth, out.normal, out.distance, covered
+        else:  # the priors among themselves
+            depth = priors.depth(i)
+            normal, distance = prior_plane(depth, view, s.prior_normal_span)
+            mask = (priors.star.depth[i] > 0) & (normal.norm(dim=-1) > 0)
+        total = 0.0
+        for nbr in neighbours:
+            geo, ncc = multiview_pair(view, nbr, depth, normal, distance, priors.depth(nbr.index), mask, s, generator)
+            total = total + geo + (0.0 if ncc is None else ncc[0] / ncc[1])
+        t["lba"] = s.lba_weight * total / len(neighbours)
+        priors.update_confidence(i, neighbours)
+    return t
+
+
+@torch.no_grad()
+def export_priors(trainer: Trainer, scene: Scene, priors: PriorState, out_dir: Path, kind: str) -> None:
+    """The final D̂ of every view at the dataset's resolution (``{view}.npz``: depth, the
+    updated confidence, normal; PNG previews), and ``{view}.compare.png``: D* | D̂ | the
+    rendered depth at the training resolution, under one colour scale."""
+    import cv2
+
+    with atomic_dir(out_dir) as tmp:
+        for view, cam in zip(trainer.views, tqdm(scene.cameras, desc="exporting priors", unit="view")):
+            small = priors.depth(view.index).cpu().numpy()
+            depth = cv2.resize(small, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
+            conf = priors.confidence[view.index].cpu().numpy().astype(np.uint8)
+            conf = cv2.resize(conf, (cam.width, cam.height), interpolation=cv2.INTER_NEAREST).astype(np.float32)
+            normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()
+            save_maps(tmp / f"{cam.view_id}.npz", depth=depth, confidence=conf, normal=normal)
+            rendered = getattr(trainer.render(view), kind).cpu().numpy()
+            write_image(tmp / f"{cam.view_id}.compare.png",
+                        comparison_preview(priors.star.depth[view.index].cpu().numpy(), small, rendered))
 
 
 @torch.no_grad()
@@ -108,19 +261,55 @@ def export_depths(trainer: Trainer, scene: Scene, out_dir: Path, kind: str) -> N
                       confidence=out.alpha.cpu().numpy(), normal=normal.cpu().numpy())
 
 
-def train_joint(scene: Scene, out_dir: Path, settings: JointSettings) -> dict:
-    """Run the stage for ``settings.method``; returns the metrics it writes."""
+def uses_priors(s: JointSettings) -> bool:
+    return s.priors != "none" or s.init == "priors"
+
+
+@dataclass
+class JointRun:
+    """A joint stage ready to run: ``trainer.run(loss)``."""
+
+    trainer: Trainer
+    loss: Callable[[int, View, RenderOutput], dict[str, torch.Tensor]]
+    priors: PriorState | None
+
+
+def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir: Path | None = None) -> JointRun:
+    """The trainer, its initial Gaussians, the priors and the loss of ``settings``' method.
+    ``priors_dir`` holds the stereo priors (``priors/{backend}``) of a method that uses them."""
     s = settings
-    if s.depth not in DEPTHS:
-        raise Eve3dError(f"joint.depth: {s.depth!r} is not one of {', '.join(DEPTHS)}")
+    if uses_priors(s) and priors_dir is None:
+        raise Eve3dError(f"method {s.method} uses the stereo priors: give their folder (--priors "
+                         f"results/SCENE/priors/BACKEND, made by `eve3d stereo-render` and `eve3d stereo-depth`)")
     out_dir = Path(out_dir)
     trainer = Trainer(scene, s, out_dir, s.method)
-    points, colors = initial_points(scene, s.init_random_points, np.random.default_rng(s.seed))
+    rng = np.random.default_rng(s.seed)
+    prior = None
+    if uses_priors(s):
+        loaded = load_priors(Path(priors_dir), scene.cameras, [v.camera for v in trainer.views], trainer.device,
+                             s.prior_normal_span)
+        if s.init == "priors":
+            points, colors = prior_points(loaded, [v.camera for v in trainer.views], [v.image for v in trainer.views],
+                                          trainer.train_ids, s.init_prior_points, rng)
+        prior = PriorState(trainer, loaded, s) if s.priors != "none" else None
+        trainer.input_digest = loaded.digest
+    if s.init != "priors":
+        points, colors = initial_points(scene, s.init_random_points, rng)
     trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree))
     if s.exposure:
         trainer.add_extra("exposure", torch.eye(3, 4).repeat(len(trainer.views), 1, 1), s.exposure_lr)
-    trainer.run(loss_terms(trainer, s, select_neighbours(scene, s.neighbours)))
+    return JointRun(trainer, loss_terms(trainer, s, select_neighbours(scene, s.neighbours), prior), prior)
+
+
+def train_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir: Path | None = None) -> dict:
+    """Run the stage for ``settings.method``; returns the metrics it writes."""
+    s, out_dir = settings, Path(out_dir)
+    run = setup_joint(scene, out_dir, s, priors_dir)
+    trainer, prior = run.trainer, run.priors
+    trainer.run(run.loss)
     depth_kind = s.depth
+    if prior is not None and prior.learnable:
+        export_priors(trainer, scene, prior, out_dir / "priors", depth_kind)
     trainer.model.save_ply(out_dir / "point_cloud.ply")
     export_depths(trainer, scene, out_dir / "depth", depth_kind)
     metrics = {"method": s.method, "train": trainer.evaluate(trainer.train_ids),

@@ -50,14 +50,16 @@ def depth_to_points(depth: torch.Tensor, cam: CameraTensors) -> torch.Tensor:
     return cam.rays() * depth[..., None]
 
 
-def depth_to_normal(depth: torch.Tensor, cam: CameraTensors) -> torch.Tensor:
+def depth_to_normal(depth: torch.Tensor, cam: CameraTensors, span: int = 1) -> torch.Tensor:
     """(H, W, 3) unit normals facing the camera from central differences of the
-    back-projected depth; zero on the one-pixel border."""
+    back-projected depth over ±``span`` pixels (a wider span averages out depth noise);
+    zero on the ``span``-pixel border."""
     p = depth_to_points(depth, cam)
-    dx = p[1:-1, 2:] - p[1:-1, :-2]
-    dy = p[2:, 1:-1] - p[:-2, 1:-1]
+    k = span
+    dx = p[k:-k, 2 * k:] - p[k:-k, :-2 * k]
+    dy = p[2 * k:, k:-k] - p[:-2 * k, k:-k]
     n = F.normalize(torch.cross(dy, dx, dim=-1), dim=-1)  # y down × x right faces −z, the camera
-    return F.pad(n.permute(2, 0, 1), (1, 1, 1, 1)).permute(1, 2, 0)
+    return F.pad(n.permute(2, 0, 1), (k, k, k, k)).permute(1, 2, 0)
 
 
 def edge_weight(image: torch.Tensor) -> torch.Tensor:

@@ -54,7 +54,20 @@ REGISTRY: dict[str, Method] = {m.name: m for m in (
     Method("3dgs", "3DGS: L_rgb only, split by the plain 2D-mean gradient, meshed from the expected depth",
            settings={**_PHOTOMETRIC_ONLY, "depth": "depth_expected", "densify": {"absgrad": False}}),
     Method("pgsr", "PGSR: planar Gaussians, flattening, depth–normal and multi-view (rendered neighbour) losses"),
+    Method("prior-fixed", "PGSR + L_prior towards the fixed stereo depth D* (the paper's 'PGSR + FoundationStereo'):"
+           " no learnable priors, no LBA", settings={"priors": "fixed", "lba_weight": 0.0}),
+    Method("eve3d", "Eve3D: Gaussians from the prior depths; L_prior; learnable priors D̂ with L_pull; the LBA of"
+           " the depth against K neighbours' D̂ (in place of PGSR's rendered neighbour)",
+           settings={"init": "priors", "priors": "learnable", "geo_weight": 0.0, "ncc_weight": 0.0}),
 )}
+
+# Variants that ship with the code: the paper's fast schedule and its Table 4 ablations.
+BUILTIN_VARIANTS: dict[str, dict[str, Any]] = {
+    "eve3d-fast": {"method": "eve3d", "iterations": 5000, "joint_from": 1000, "dn_from": 1000,
+                   "densify": {"refine_stop": 4000}},
+    "eve3d-prior-loss": {"method": "eve3d", "priors": "fixed", "lba_weight": 0.0},  # Table 4: prior loss only
+    "eve3d-fixed-lba": {"method": "eve3d", "priors": "fixed"},  # Table 4: prior loss + LBA, priors not learnable
+}
 
 
 def _merge(base: Mapping, over: Mapping) -> dict:
@@ -69,7 +82,7 @@ def methods(variants: Mapping[str, Mapping] | None = None) -> dict[str, Method]:
     """The registry with the config's ``variants`` applied (new names added, registered
     names' settings changed); an error names the variant that is wrong."""
     out = dict(REGISTRY)
-    pending = dict(variants or {})
+    pending = _merge(BUILTIN_VARIANTS, variants or {})
     while pending:  # a variant may start from another variant
         progress = False
         for name, spec in list(pending.items()):

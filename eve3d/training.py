@@ -185,6 +185,10 @@ class Trainer:
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         self.extra: dict[str, torch.Tensor] = {}
         self.extra_optimizers: dict[str, torch.optim.Optimizer] = {}
+        self.buffers: dict[str, torch.Tensor] = {}
+        """State that is not optimised but changes during training (checkpointed)."""
+        self.input_digest = ""
+        """A digest of further inputs (e.g. the priors) that a checkpoint must match."""
         self.densify_state: dict[str, torch.Tensor] = {}
         self.step = 0
         self._order: list[int] = []
@@ -292,9 +296,10 @@ class Trainer:
         return self.work_dir / "checkpoint.pt"
 
     def fingerprint(self) -> str:
-        """What a checkpoint must match to be resumed: the settings and the scene's views."""
-        blob = json.dumps([dataclasses.asdict(self.s), [c.name for c in self.scene.cameras]], sort_keys=True,
-                          default=str)
+        """What a checkpoint must match to be resumed: the settings, the scene's views and
+        poses, and the further inputs (``input_digest``)."""
+        poses = [[c.name, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in self.scene.cameras]
+        blob = json.dumps([dataclasses.asdict(self.s), poses, self.input_digest], sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def _saved_step(self) -> int | str:
@@ -310,6 +315,7 @@ class Trainer:
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "extra": {k: v.detach().cpu() for k, v in self.extra.items()},
             "extra_optimizers": {k: o.state_dict() for k, o in self.extra_optimizers.items()},
+            "buffers": {k: v.cpu() for k, v in self.buffers.items()},
             "densify_state": {k: v.cpu() for k, v in self.densify_state.items()},
             "generator": self.generator.get_state(), "order": list(self._order),
         }
@@ -335,6 +341,8 @@ class Trainer:
         for name, value in ckpt["extra"].items():
             self.extra[name].data.copy_(value)
             self.extra_optimizers[name].load_state_dict(ckpt["extra_optimizers"][name])
+        for name, value in ckpt["buffers"].items():
+            self.buffers[name].copy_(value)
         self.densify_state = {k: v.to(self.device) for k, v in ckpt["densify_state"].items()}
         self.generator.set_state(ckpt["generator"])
         self._order = list(ckpt["order"])

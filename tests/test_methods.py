@@ -67,3 +67,14 @@ def test_a_config_variant_gets_its_own_jobs(tmp_path):
     out = r.stdout + r.stderr
     assert "tiny/pgsr-flat/point_cloud.ply" in out and "tiny/pgsr/point_cloud.ply" in out
     assert "--method pgsr-flat" in out and '"pgsr-flat": {"dn_weight": 0, "method": "pgsr"}' in out
+
+
+def test_a_prior_method_depends_on_the_stereo_priors_in_the_workflow(tmp_path):
+    cfg = write_config(tmp_path, methods=["pgsr", "eve3d", "eve3d-fast"], stereo={"backend": "sgbm"})
+    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config", "-p")
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout + r.stderr
+    assert "rule stereo_depth" in out and f"--priors {tmp_path}/results/tiny/priors/sgbm" in out
+    assert out.count("--priors") == 2  # eve3d and eve3d-fast, not pgsr
+    # the cpu preset's eve3d-fast schedule reaches the job
+    assert '"eve3d-fast": {"densify": {"refine_stop": 600}, "dn_from": 250' in out

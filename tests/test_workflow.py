@@ -58,23 +58,26 @@ def test_bad_training_key_is_named_before_any_job(tmp_path):
 
 
 def test_tiny_training_run(tmp_path):
-    """pretrain, stereo priors, stereo-tsdf, 3dgs and pgsr through the workflow on a tiny
-    scene with very short schedules."""
+    """pretrain, stereo priors, stereo-tsdf, 3dgs, pgsr and eve3d through the workflow on a
+    tiny scene with very short schedules."""
     short = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
     tiny = {"kind": "object", "views": 12, "width": 160, "height": 120}
-    cfg = write_config(tmp_path, methods=["stereo-tsdf", "3dgs", "pgsr"],
+    cfg = write_config(tmp_path, methods=["stereo-tsdf", "3dgs", "pgsr", "eve3d"],
                        scenes={"tiny": {"synthetic": tiny},
                                # novel views: the methods that render, every 8th view held out
                                "tiny-nvs": {"synthetic": tiny, "protocol": "nvs", "methods": ["3dgs", "oracle"]}},
                        pretrain={"iterations": 80, "reinit_at": [], "simplify_at": [60], "densify": short},
-                       joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "densify": short})
+                       joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "prior_from": 5, "joint_from": 20,
+                              "init_prior_points": 3000, "densify": short})
     results = tmp_path / "results"
     r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
     rows = list(csv.DictReader(open(results / "summary.csv")))
-    assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "3dgs"), ("tiny", "pgsr"),
-                                                               ("tiny", "stereo-tsdf"), ("tiny-nvs", "3dgs")]
-    assert all(0 < float(row["fscore"]) <= 1 for row in rows[:3])
+    assert [(row["scene"], row["method"]) for row in rows] == [
+        ("tiny", "3dgs"), ("tiny", "eve3d"), ("tiny", "pgsr"), ("tiny", "stereo-tsdf"), ("tiny-nvs", "3dgs")]
+    assert all(0 < float(row["fscore"]) <= 1 for row in rows[:4])
+    rows = [row for row in rows if row["method"] != "eve3d"]
+    assert (results / "tiny/eve3d/priors/000.npz").exists() and (results / "tiny/eve3d/priors/000.compare.png").exists()
     nvs = json.loads((results / "tiny-nvs/3dgs/metrics.json").read_text())
     trained = json.loads((results / "tiny-nvs/3dgs/train_metrics.json").read_text())
     assert trained["settings"]["holdout"] == 8 and nvs["views"] == 2  # views 0 and 8 of 12
@@ -88,7 +91,7 @@ def test_tiny_training_run(tmp_path):
     assert views[0]["stage"] == "pretrain" and int(views[0]["views"]) == 2
     assert float(views[0]["psnr"]) > 15
     assert (results / "tiny/stereo/right/000.png").exists() and (results / "tiny/priors/sgbm/000.npz").exists()
-    for method in ("3dgs", "pgsr"):
+    for method in ("3dgs", "pgsr", "eve3d"):
         assert (results / f"tiny/{method}/depth/000.npz").exists()
         assert (results / f"tiny/{method}/previews/000.depth.png").exists()
     assert not list(results.glob("tiny/*/checkpoint.pt"))  # removed once a stage's outputs exist

@@ -118,6 +118,14 @@ def stereo_priors(scene):
     return f"{RESULTS}/{scene}/priors/{config['stereo']['backend']}"
 
 
+def joint_inputs(wildcards):
+    """The posed dataset, and the stereo priors of a method that uses them."""
+    inputs = {"scene": posed_dataset(wildcards)}
+    if METHOD[wildcards.method].needs_priors:
+        inputs["priors"] = stereo_priors(wildcards.scene)
+    return inputs
+
+
 def depth_source(wildcards):
     """Per-view depth maps that a method's mesh fuses."""
     fuses = METHOD[wildcards.method].fuses
@@ -157,8 +165,12 @@ def training_config(stage, scene=None, method=None):
     if stage == "joint" and scene is not None:
         section.update(PROTOCOL[scene].joint_settings)
     job = {"preset": config["preset"], "train": config["train"], stage: section}
-    if method in config["variants"]:
-        job["variants"] = {method: config["variants"][method]}
+    chain = {}  # the config's variants this method starts from, itself first
+    while method in config["variants"] and method not in chain:
+        chain[method] = config["variants"][method]
+        method = chain[method].get("method", method)
+    if chain:
+        job["variants"] = chain
     return shlex.quote(json.dumps(job, sort_keys=True))
 
 

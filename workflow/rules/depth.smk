@@ -12,6 +12,8 @@ rule stereo_render:
         baseline=lambda wc: config["stereo"]["baseline_factor"],
     log:
         f"{RESULTS}/logs/{{scene}}/stereo_render.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/{{scene}}/stereo_render.tsv",
     conda:
         CONDA_ENV
     shell:
@@ -30,6 +32,8 @@ rule stereo_depth:
         args=stereo_depth_args,
     log:
         f"{RESULTS}/logs/{{scene}}/stereo_depth_{{backend}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/{{scene}}/stereo_depth_{{backend}}.tsv",
     conda:
         CONDA_ENV
     shell:

@@ -11,6 +11,8 @@ rule mesh:
         args=mesh_args,
     log:
         f"{RESULTS}/logs/{{scene}}/mesh_{{method}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/{{scene}}/mesh_{{method}}.tsv",
     conda:
         CONDA_ENV
     shell:

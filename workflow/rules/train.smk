@@ -12,6 +12,8 @@ rule pretrain:
         config=lambda wc: training_config("pretrain"),
     log:
         f"{RESULTS}/logs/{{scene}}/pretrain.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/{{scene}}/pretrain.tsv",
     threads: workflow.cores
     conda:
         CONDA_ENV
@@ -22,7 +24,7 @@ rule pretrain:
 
 rule joint:
     input:
-        scene=posed_dataset,
+        unpack(joint_inputs),
     output:
         model=f"{RESULTS}/{{scene}}/{{method}}/point_cloud.ply",
         depth=directory(f"{RESULTS}/{{scene}}/{{method}}/depth"),
@@ -31,11 +33,14 @@ rule joint:
         method="|".join(map(re.escape, TRAINED)),
     params:
         config=lambda wc: training_config("joint", wc.scene, wc.method),
+        priors=lambda wc, input: f"--priors {input.priors}" if "priors" in input.keys() else "",
     log:
         f"{RESULTS}/logs/{{scene}}/joint_{{method}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/{{scene}}/joint_{{method}}.tsv",
     threads: workflow.cores
     conda:
         CONDA_ENV
     shell:
         "OMP_NUM_THREADS={threads} {EVE3D} joint --method {wildcards.method} --scene {input.scene}"
-        " --out {RESULTS}/{wildcards.scene}/{wildcards.method} --config {params.config} > {log} 2>&1"
+        " --out {RESULTS}/{wildcards.scene}/{wildcards.method} {params.priors} --config {params.config} > {log} 2>&1"

@@ -1,0 +1,121 @@
+"""The stereo priors as the joint stage uses them: D*, M^c and the prior normal of every
+training view at the training resolution, and the learnable priors D̂ (DESIGN §3).
+
+D̂ is stored as log-depth, one parameter per view with its own Adam: a step of size lr
+changes a depth by the same *fraction* whatever the scene's scale (1e-4 = 0.01 %), and an
+optimiser that only steps the maps a training step used leaves every other view's D̂ and
+its moments exactly as they were.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from eve3d.maps import load_maps, preview_image
+from eve3d.scene import Camera, Eve3dError
+
+
+@dataclass
+class Priors:
+    """(V, H, W) maps at the training resolution, V = every view of the scene."""
+
+    depth: torch.Tensor
+    """D*, camera z; 0 where the stereo stage gave no depth."""
+    confidence: torch.Tensor
+    """M^c (bool), updated during training by the multi-view check."""
+    normal: torch.Tensor
+    """(V, H, W, 3) N_prior of D* (camera space, facing the camera; 0 where undefined)."""
+    digest: str
+    """SHA-256 of the prior files: a checkpoint trained on other priors is not resumed."""
+
+
+def resample_prior(depth: np.ndarray, confidence: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Depth and confidence at another size without mixing valid and invalid depths: a
+    pixel's depth is the area mean of the *valid* depths under it, and it is valid only
+    when valid depths cover at least half of it (confident likewise)."""
+    import cv2
+
+    if depth.shape == (height, width):
+        return depth.astype(np.float32), confidence.astype(np.float32)
+    valid = (depth > 0).astype(np.float32)
+    area = lambda a: cv2.resize(a.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA)  # noqa: E731
+    cover = area(valid)
+    mean = area(depth * valid) / np.maximum(cover, 1e-6)
+    keep = cover >= 0.5
+    conf = area((confidence > 0.5) & (depth > 0)) >= 0.5
+    return np.where(keep, mean, 0).astype(np.float32), (conf & keep).astype(np.float32)
+
+
+def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], device: torch.device,
+                normal_span: int = 1) -> Priors:
+    """The priors of every camera (``{folder}/{view}.npz``, at the dataset's size) resampled
+    to its training camera's size, with normals from the resampled depth (finite
+    differences over ±``normal_span`` pixels). A missing, mis-sized or all-invalid map is an
+    error naming the file."""
+    from eve3d.losses import depth_to_normal
+    from eve3d.render.projection import CameraTensors
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise Eve3dError(f"{folder}: no priors folder (run the stereo stage: `eve3d stereo-render`, then "
+                         f"`eve3d stereo-depth`)")
+    digest = hashlib.sha256()
+    depths, confs, normals = [], [], []
+    for full, cam in zip(cameras, training):
+        path = folder / f"{cam.view_id}.npz"
+        if not path.is_file():
+            raise Eve3dError(f"{path}: missing prior for view {cam.view_id}")
+        digest.update(path.read_bytes())
+        maps = load_maps(path)
+        if "depth" not in maps or "confidence" not in maps:
+            raise Eve3dError(f"{path}: a prior needs 'depth' and 'confidence' maps, it has {', '.join(maps)}")
+        depth, conf = maps["depth"], maps["confidence"]
+        if depth.shape != (full.height, full.width) or conf.shape != depth.shape:
+            raise Eve3dError(f"{path}: maps are {depth.shape[1]}×{depth.shape[0]}, view {cam.view_id} is "
+                             f"{full.width}×{full.height}")
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0)
+        depth, conf = resample_prior(depth, conf, cam.width, cam.height)
+        if not ((depth > 0) & (conf > 0.5)).any():
+            raise Eve3dError(f"{path}: no confident prior depth at all (every pixel invalid or unconfident)")
+        d = torch.from_numpy(depth)
+        depths.append(d)
+        confs.append(torch.from_numpy(conf > 0.5))
+        normals.append(depth_to_normal(d, CameraTensors.from_camera(cam), normal_span))
+    return Priors(torch.stack(depths).to(device), torch.stack(confs).to(device), torch.stack(normals).to(device),
+                  digest.hexdigest()[:16])
+
+
+def filled_log_depth(depth: torch.Tensor) -> torch.Tensor:
+    """log D* with every invalid pixel given its nearest valid pixel's depth: the start of
+    D̂ (L_pull moves the unconfident pixels toward the rendered depth)."""
+    from scipy.ndimage import distance_transform_edt
+
+    d = depth.cpu().numpy()
+    _, (rows, cols) = distance_transform_edt(d <= 0, return_indices=True)
+    return torch.from_numpy(np.log(d[rows, cols])).to(depth.device)
+
+
+def prior_points(priors: Priors, cameras: list[Camera], images: list[torch.Tensor], views: list[int], count: int,
+                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` points drawn uniformly among the confident prior pixels of ``views``,
+    back-projected to the world, with the photos' colours (Eve3D's initialisation)."""
+    points, colours = [], []
+    for i in views:
+        conf = (priors.confidence[i] & (priors.depth[i] > 0)).cpu().numpy()
+        world = cameras[i].backproject(priors.depth[i].cpu().numpy())
+        points.append(world[conf])
+        colours.append(images[i].cpu().numpy()[conf])
+    points, colours = np.concatenate(points), np.concatenate(colours)
+    if len(points) < 4:
+        raise Eve3dError("the priors have fewer than 4 confident pixels over the training views")
+    pick = rng.choice(len(points), size=min(count, len(points)), replace=False)
+    return points[pick], colours[pick]
+
+
+def comparison_preview(*depths: np.ndarray) -> np.ndarray:
+    """Depth maps side by side under one colour scale (e.g. D* | D̂ | rendered D)."""
+    return preview_image("depth", np.concatenate(depths, axis=1))

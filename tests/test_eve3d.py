@@ -1,0 +1,259 @@
+"""Eve3D: priors reaching training, the learnable priors D̂, the LBA and its shared
+multi-view code, initialisation from the priors, checkpoints over priors."""
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from eve3d.joint import JointSettings, multiview_pair, prior_plane, setup_joint, train_joint
+from eve3d.losses import forward_backward_error
+from eve3d.maps import load_maps, save_maps
+from eve3d.methods import methods
+from eve3d.priors.learnable import resample_prior
+from eve3d.priors.oracle import oracle_priors
+from eve3d.render.projection import CameraTensors
+from eve3d.scene import Camera, Eve3dError
+from eve3d.training import Trainer, View
+from tests.conftest import run_cli
+from tests.test_training import _joint_settings
+
+
+# -- the LBA's geometry ----------------------------------------------------------------------
+
+def _plane_pair(tilt: float = 0.0) -> tuple[View, View, torch.Tensor]:
+    """Two views 0.3 apart along x of a textured plane 3 units ahead (tilted about y by
+    ``tilt`` rad), with the reference view's exact depth."""
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    n = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])  # faces the cameras
+    views, depth_ref = [], None
+    for i, x in enumerate((0.0, 0.3)):
+        cam = Camera(f"{i}.png", 64, 48, K, np.eye(3), np.array([-x, 0.0, 0.0]))
+        ct = CameraTensors.from_camera(cam, torch.float64)
+        rays = ct.rays().numpy()
+        centre = np.array([x, 0.0, 0.0])
+        # plane n·X = −3 (X world); ray X = c + s·r: s = (−3 − n·c) / (n·r)
+        s = (-3 - centre @ n) / (rays @ n)
+        p = centre + rays * s[..., None]
+        tex = 0.5 + 0.25 * np.sin(7 * p[..., 0]) * np.cos(5 * p[..., 1]) + 0.2 * np.sin(11 * p[..., 0] + 3 * p[..., 1])
+        image = torch.tensor(np.repeat(tex[..., None], 3, -1))
+        views.append(View(i, cam, ct, image))
+        if i == 0:
+            depth_ref = torch.tensor(s)  # z of the reference camera (R = I)
+    return views[0], views[1], depth_ref
+
+
+def test_lba_reprojection_returns_a_pixel_to_itself_with_exact_depth():
+    ref, nbr, depth = _plane_pair()
+    nbr_depth = torch.full_like(depth, 3.0)  # fronto-parallel: the neighbour sees z = 3 too
+    phi, defined = forward_backward_error(depth, nbr_depth, ref.cam, nbr.cam)
+    assert defined.float().mean() > 0.6 and float(phi[defined].max()) < 1e-3
+    s = JointSettings(ncc_pixels=400)
+    normal, distance = prior_plane(depth, ref)
+    geo, ncc = multiview_pair(ref, nbr, depth, normal, distance, nbr_depth, defined, s, torch.Generator().manual_seed(0))
+    assert float(geo) < 1e-3
+    # 1 − NCC ≈ 0: the true plane's homography aligns the patches (up to the bilinear lookup)
+    assert float(ncc[0] / ncc[1]) < 5e-3
+
+
+def test_homography_ncc_is_about_one_on_the_true_plane_and_lower_on_a_wrong_one():
+    from eve3d.losses import ncc_loss
+
+    ref, nbr, depth = _plane_pair(tilt=0.3)  # 6 px of disparity, a texture period of about 11 px
+    mask = torch.zeros_like(depth, dtype=torch.bool)
+    mask[4:-4, 4:-20] = True
+    scores = {}
+    for name, d in (("true", depth), ("20% far", depth * 1.2), ("50% far", depth * 1.5),
+                    ("untilted", torch.full_like(depth, float(depth.mean())))):
+        normal, distance = prior_plane(d, ref)
+        ncc, ok = ncc_loss(ref.image, nbr.image, ref.cam, nbr.cam, normal, distance, mask.nonzero())
+        assert ok.float().mean() > 0.8
+        scores[name] = 1 - float(ncc[ok].mean())  # the mean NCC
+    assert scores["true"] > 0.999
+    assert scores["20% far"] < 0.9 and scores["50% far"] < 0.6 and scores["untilted"] < scores["true"] - 0.01, scores
+
+
+# -- priors reaching training -----------------------------------------------------------------
+
+def test_resampling_does_not_mix_valid_and_invalid_depths():
+    depth = np.array([[2.0, 2.0, 4.0, 0.0], [2.0, 0.0, 0.0, 0.0]], np.float32)
+    conf = np.array([[1, 1, 1, 0], [1, 1, 0, 0]], np.float32)
+    small, small_conf = resample_prior(depth, conf, 2, 1)
+    # left block: 3 valid depths of 2 → 2 (not 1.5 from the zero); right: 1 valid of 4 → invalid
+    assert small.tolist() == [[2.0, 0.0]] and small_conf.tolist() == [[1.0, 0.0]]
+
+
+@pytest.fixture(scope="module")
+def noisy_priors(tiny_scene, tmp_path_factory) -> Path:
+    """Oracle depth with a 3% multiplicative error on a band of rows and 2% noise, the band
+    confident (a prior that is confident and wrong), a quarter of pixels unconfident."""
+    exact = tmp_path_factory.mktemp("priors") / "oracle"
+    oracle_priors(tiny_scene, exact, preview=False)
+    noisy = exact.parent / "noisy"
+    noisy.mkdir()
+    rng = np.random.default_rng(0)
+    for cam in tiny_scene.cameras:
+        m = load_maps(exact / f"{cam.view_id}.npz")
+        d = m["depth"] * (1 + 0.02 * rng.standard_normal(m["depth"].shape))
+        d[10:20] *= 1.03
+        conf = m["confidence"] * (rng.random(d.shape) > 0.25)
+        save_maps(noisy / f"{cam.view_id}.npz", preview=False, depth=np.where(m["depth"] > 0, d, 0), confidence=conf,
+                  normal=m["normal"])
+    return noisy
+
+
+def _eve3d(**kw) -> JointSettings:
+    base = {**methods()["eve3d"].settings, "init_prior_points": 3000}
+    densify = _joint_settings().densify
+    return _joint_settings(**{**base, **kw, "method": "eve3d"}, densify=replace(densify, refine_stop=0))
+
+
+def _log_depths(trainer: Trainer) -> dict[str, torch.Tensor]:
+    return {k: v.detach().clone() for k, v in trainer.extra.items() if k.startswith("prior_log_depth/")}
+
+
+def test_learnable_priors_move_only_as_the_method_says(tiny_scene, tmp_path, noisy_priors):
+    # before T_joint, without the LBA: nothing moves D̂
+    run = setup_joint(tiny_scene, tmp_path / "a", _eve3d(iterations=20, prior_from=0, joint_from=100, lba_weight=0.0),
+                      noisy_priors)
+    start = _log_depths(run.trainer)
+    run.trainer.run(run.loss)
+    assert all(torch.equal(start[k], v) for k, v in _log_depths(run.trainer).items())
+    # before T_joint with the LBA among the priors: D̂ moves
+    run = setup_joint(tiny_scene, tmp_path / "b", _eve3d(iterations=20, prior_from=0, joint_from=100), noisy_priors)
+    run.trainer.run(run.loss)
+    moved = _log_depths(run.trainer)
+    assert sum(not torch.equal(start[k], v) for k, v in moved.items()) >= 6
+    # after T_joint (L_prior towards D̂, L_pull, the LBA of the rendered depth): D̂ moves on
+    run = setup_joint(tiny_scene, tmp_path / "c", _eve3d(iterations=20, prior_from=0, joint_from=0, lba_weight=0.0),
+                      noisy_priors)
+    run.trainer.run(run.loss)
+    assert sum(not torch.equal(start[k], v) for k, v in _log_depths(run.trainer).items()) >= 6
+
+
+def test_a_step_leaves_unvisited_views_priors_and_moments_untouched(tiny_scene, tmp_path, noisy_priors):
+    from eve3d.neighbours import select_neighbours
+
+    run = setup_joint(tiny_scene, tmp_path, _eve3d(iterations=1, prior_from=0, joint_from=0, neighbours=2),
+                      noisy_priors)
+    start, visited, loss = _log_depths(run.trainer), [], run.loss
+    run.trainer.run(lambda step, view, out: visited.append(view.index) or loss(step, view, out))
+    used = {visited[0], *select_neighbours(tiny_scene, 2)[visited[0]]}
+    assert len(used) == 3
+    for k, v in _log_depths(run.trainer).items():
+        i, state = int(k.split("/")[1]), run.trainer.extra_optimizers[k].state
+        if i in used:
+            assert not torch.equal(start[k], v) and state, i
+        else:
+            assert torch.equal(start[k], v) and not state, i
+
+
+def test_prior_fixed_has_no_learnable_priors_and_pulls_towards_d_star(tiny_scene, tmp_path, noisy_priors):
+    s = _joint_settings(**methods()["prior-fixed"].settings, method="prior-fixed", iterations=30, prior_from=0,
+                        joint_from=10)
+    run = setup_joint(tiny_scene, tmp_path, s, noisy_priors)
+    star = run.priors.star.depth.clone()
+    seen = []
+    loss = run.loss
+    run.trainer.run(lambda step, view, out: seen.append(t := loss(step, view, out)) or t)
+    assert not _log_depths(run.trainer) and torch.equal(run.priors.star.depth, star)
+    assert all("prior" in t and "pull" not in t and "lba" not in t for t in seen)
+    assert torch.equal(run.priors.depth(0), star[0])
+
+
+def test_killed_run_resumes_to_the_same_gaussians_and_priors(tiny_scene, tmp_path, noisy_priors, monkeypatch,
+                                                            one_thread):
+    s = _eve3d(iterations=40, prior_from=0, joint_from=20, checkpoint_every=15)
+
+    def final(out):
+        run = setup_joint(tiny_scene, out, s, noisy_priors)
+        run.trainer.run(run.loss)
+        return run
+
+    straight = final(tmp_path / "straight")
+    save = Trainer.save_checkpoint
+
+    def save_then_die(self):
+        save(self)
+        if self.step == 30:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        final(tmp_path / "killed")
+    monkeypatch.setattr(Trainer, "save_checkpoint", save)
+    resumed = final(tmp_path / "killed")
+    assert resumed.trainer.step == 40
+    for name, value in straight.trainer.model.params.items():
+        assert torch.allclose(resumed.trainer.model.params[name], value, atol=1e-5), name
+    for k, v in _log_depths(straight.trainer).items():
+        assert torch.allclose(_log_depths(resumed.trainer)[k], v, atol=1e-6), k
+    assert torch.equal(resumed.priors.confidence, straight.priors.confidence)
+
+
+def test_checkpoint_from_other_priors_is_not_resumed(tiny_scene, tmp_path, noisy_priors, capsys):
+    s = _eve3d(iterations=10, prior_from=0, joint_from=5)
+    run = setup_joint(tiny_scene, tmp_path / "run", s, noisy_priors)
+    run.trainer.save_checkpoint()
+    other = tmp_path / "other"
+    other.mkdir()
+    for f in noisy_priors.glob("*.npz"):
+        m = load_maps(f)
+        save_maps(other / f.name, preview=False, **{**m, "depth": m["depth"] * 1.01})
+    assert setup_joint(tiny_scene, tmp_path / "run", s, noisy_priors).trainer.resume()
+    assert not setup_joint(tiny_scene, tmp_path / "run", s, other).trainer.resume()
+    assert "other settings" in capsys.readouterr().err
+
+
+def test_eve3d_starts_from_points_on_the_prior_surface(tiny_scene, tmp_path, noisy_priors):
+    from eve3d.raycast import MeshRaycaster  # noqa: F401 (the GT mesh is read by open3d)
+    import open3d as o3d
+
+    run = setup_joint(tiny_scene, tmp_path, _eve3d(init_prior_points=2000), noisy_priors)
+    means = run.trainer.model.params["means"].detach().numpy()
+    assert len(means) == 2000
+    mesh = o3d.t.geometry.TriangleMesh.from_legacy(o3d.io.read_triangle_mesh(str(tiny_scene.gt_mesh)))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(mesh)
+    dist = scene.compute_distance(o3d.core.Tensor(means.astype(np.float32))).numpy()
+    # the priors are 2% noisy (3% on a band): points lie within a few % of the depth (≈ 3 units)
+    assert np.median(dist) < 0.05 and np.mean(dist < 0.15) > 0.95
+
+
+def test_exported_priors_at_dataset_resolution_with_previews(tiny_scene, tmp_path, noisy_priors):
+    train_joint(tiny_scene, tmp_path, _eve3d(iterations=10, prior_from=0, joint_from=5, resolution=0.5), noisy_priors)
+    m = load_maps(tmp_path / "priors/000.npz")
+    cam = tiny_scene.cameras[0]
+    assert m["depth"].shape == (cam.height, cam.width) and set(m) == {"depth", "confidence", "normal"}
+    assert (tmp_path / "priors/000.compare.png").exists() and (tmp_path / "priors/000.depth.png").exists()
+
+
+@pytest.mark.parametrize("damage, message", [
+    ("missing", "003.npz: missing prior for view 003"),
+    ("size", "003.npz: maps are 32×24, view 003 is 64×48"),
+    ("invalid", "003.npz: no confident prior depth"),
+])
+def test_bad_prior_map_is_named_before_training(tiny_scene, tmp_path, noisy_priors, damage, message):
+    import shutil
+
+    bad = tmp_path / "priors"
+    shutil.copytree(noisy_priors, bad)
+    path = bad / "003.npz"
+    if damage == "missing":
+        path.unlink()
+    else:
+        m = load_maps(path)
+        m = {k: v[::2, ::2] for k, v in m.items()} if damage == "size" else {**m, "depth": m["depth"] * 0}
+        save_maps(path, preview=False, **m)
+    with pytest.raises(Eve3dError, match=message):
+        setup_joint(tiny_scene, tmp_path / "run", _eve3d(), bad)
+
+
+def test_prior_method_without_priors_stops_with_what_is_missing(tiny_dataset, tmp_path):
+    r = run_cli("joint", "--method", "eve3d", "--scene", tiny_dataset, "--out", tmp_path / "a")
+    assert r.returncode == 2 and "method eve3d uses the stereo priors: give their folder (--priors" in r.stderr
+    r = run_cli("joint", "--method", "prior-fixed", "--scene", tiny_dataset, "--out", tmp_path / "b",
+                "--priors", tmp_path / "stereo")
+    assert r.returncode == 2 and "no priors folder (run the stereo stage" in r.stderr
+    assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
