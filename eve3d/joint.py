@@ -28,6 +28,7 @@ from eve3d.gaussians import GaussianModel
 from eve3d.losses import (depth_normal_loss, depth_to_normal, depth_to_points, forward_backward_error, geometric_loss,
                           ncc_loss, rgb_loss)
 from eve3d.maps import save_maps
+from eve3d.methods import uses_priors
 from eve3d.neighbours import select_neighbours
 from eve3d.priors.learnable import Priors, comparison_preview, filled_log_depth, load_priors, prior_points
 from eve3d.render import RenderOutput
@@ -99,7 +100,8 @@ class JointSettings(TrainSettings):
 
 def multiview_pair(ref: View, nbr: View, depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,
                    nbr_depth: torch.Tensor, mask: torch.Tensor, s: JointSettings, generator: torch.Generator,
-                   with_ncc: bool = True) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None]:
+                   with_ncc: bool = True
+                   ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None, torch.Tensor]:
     """PGSR's multi-view terms for one reference–neighbour pair, shared by PGSR's loss (the
     neighbour's depth rendered) and Eve3D's LBA (the neighbour's prior D̂_n). ``depth``,
     ``normal`` and ``distance`` are the reference's depth and plane (rendered, or of the
@@ -107,7 +109,8 @@ def multiview_pair(ref: View, nbr: View, depth: torch.Tensor, normal: torch.Tens
     ``mask`` whose forward–backward error φ is below ``mv_threshold``, the photometric
     term 1 − NCC of ``ncc_patch`` patches warped by the plane-induced homography at
     ``ncc_pixels`` of them drawn at random, as the sum of its exp(−φ)-weighted values and
-    the count of pixels where it is defined (None when none is drawn)."""
+    the count of pixels where it is defined (None when none is drawn), and the pixels whose
+    round trip is defined and closes within ``mv_threshold`` (whatever ``mask``)."""
     phi, defined = forward_backward_error(depth, nbr_depth, ref.cam, nbr.cam)
     geo, valid = geometric_loss(phi, defined & mask, s.mv_threshold)
     idx = valid.flatten().nonzero().squeeze(1)
@@ -118,7 +121,7 @@ def multiview_pair(ref: View, nbr: View, depth: torch.Tensor, normal: torch.Tens
         ncc, ok = ncc_loss(ref.image, nbr.image, ref.cam, nbr.cam, normal, distance, pixels, s.ncc_patch)
         w = torch.exp(-phi.flatten()[pick]).detach() * ok
         ncc_term = (ncc * w).sum(), ok.sum().clamp_min(1)
-    return geo, ncc_term
+    return geo, ncc_term, defined & (phi < s.mv_threshold)
 
 
 def prior_plane(depth: torch.Tensor, view: View, span: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
@@ -146,14 +149,15 @@ class PriorState:
         return torch.exp(self.log_depth[i]) if self.learnable else self.star.depth[i]
 
     @torch.no_grad()
-    def update_confidence(self, i: int, neighbours: list[View]) -> None:
+    def update_confidence(self, i: int, neighbours: list[View], checks: list[torch.Tensor] | None = None) -> None:
         """M^c_i ← the stereo gave a depth there, and D_prior,i passes the forward–backward
-        check (φ < ``mv_threshold``) against at least ``consistent_views`` neighbours' priors."""
-        ref, d = self.trainer.views[i], self.depth(i)
-        passed = torch.zeros_like(d, dtype=torch.int32)
-        for nbr in neighbours:
-            phi, defined = forward_backward_error(d, self.depth(nbr.index), ref.cam, nbr.cam)
-            passed += (defined & (phi < self.s.mv_threshold)).int()
+        check (φ < ``mv_threshold``) against at least ``consistent_views`` neighbours' priors.
+        ``checks``: those pass masks, when the LBA has just computed them with D_prior,i."""
+        ref = self.trainer.views[i]
+        if checks is None:
+            errors = [forward_backward_error(self.depth(i), self.depth(n.index), ref.cam, n.cam) for n in neighbours]
+            checks = [defined & (phi < self.s.mv_threshold) for phi, defined in errors]
+        passed = torch.stack(checks).sum(0)
         self.confidence[i] = (self.star.depth[i] > 0) & (passed >= self.s.consistent_views)
 
 
@@ -177,8 +181,8 @@ def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], 
         if step >= s.mv_from and candidates and (s.geo_weight or s.ncc_weight):
             nbr = trainer.views[candidates[int(torch.randint(len(candidates), (1,), generator=trainer.generator))]]
             out_n = trainer.render(nbr, step)
-            geo, ncc = multiview_pair(view, nbr, out.depth, out.normal, out.distance, out_n.depth, covered, s,
-                                      trainer.generator, with_ncc=bool(s.ncc_weight))
+            geo, ncc, _ = multiview_pair(view, nbr, out.depth, out.normal, out.distance, out_n.depth, covered, s,
+                                         trainer.generator, with_ncc=bool(s.ncc_weight))
             t["mv_geo"] = s.geo_weight * geo
             if ncc is not None:
                 t["mv_ncc"] = s.ncc_weight * ncc[0] / ncc[1]
@@ -221,12 +225,15 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
             depth = priors.depth(i)
             normal, distance = prior_plane(depth, view, s.prior_normal_span)
             mask = (priors.star.depth[i] > 0) & (normal.norm(dim=-1) > 0)
-        total = 0.0
+        total, checks = 0.0, []
         for nbr in neighbours:
-            geo, ncc = multiview_pair(view, nbr, depth, normal, distance, priors.depth(nbr.index), mask, s, generator)
+            geo, ncc, passed = multiview_pair(view, nbr, depth, normal, distance, priors.depth(nbr.index), mask, s,
+                                              generator)
             total = total + geo + (0.0 if ncc is None else ncc[0] / ncc[1])
+            checks.append(passed)
         t["lba"] = s.lba_weight * total / len(neighbours)
-        priors.update_confidence(i, neighbours)
+        # before T_joint the reference is the prior itself: its checks are the ones M^c needs
+        priors.update_confidence(i, neighbours, None if joint else checks)
     return t
 
 
@@ -261,10 +268,6 @@ def export_depths(trainer: Trainer, scene: Scene, out_dir: Path, kind: str) -> N
                       confidence=out.alpha.cpu().numpy(), normal=normal.cpu().numpy())
 
 
-def uses_priors(s: JointSettings) -> bool:
-    return s.priors != "none" or s.init == "priors"
-
-
 @dataclass
 class JointRun:
     """A joint stage ready to run: ``trainer.run(loss)``."""
@@ -278,14 +281,15 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
     """The trainer, its initial Gaussians, the priors and the loss of ``settings``' method.
     ``priors_dir`` holds the stereo priors (``priors/{backend}``) of a method that uses them."""
     s = settings
-    if uses_priors(s) and priors_dir is None:
+    with_priors = uses_priors(asdict(s))
+    if with_priors and priors_dir is None:
         raise Eve3dError(f"method {s.method} uses the stereo priors: give their folder (--priors "
                          f"results/SCENE/priors/BACKEND, made by `eve3d stereo-render` and `eve3d stereo-depth`)")
     out_dir = Path(out_dir)
     trainer = Trainer(scene, s, out_dir, s.method)
     rng = np.random.default_rng(s.seed)
     prior = None
-    if uses_priors(s):
+    if with_priors:
         loaded = load_priors(Path(priors_dir), scene.cameras, [v.camera for v in trainer.views], trainer.device,
                              s.prior_normal_span)
         if s.init == "priors":

@@ -16,11 +16,11 @@ changes that method's settings (the ``cpu`` preset scales ``eve3d-fast`` down th
 """
 from __future__ import annotations
 
-import copy
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from eve3d.config import deep_merge
 from eve3d.scene import Eve3dError
 
 
@@ -40,8 +40,7 @@ class Method:
     @property
     def needs_priors(self) -> bool:
         """Whether the method reads the stereo priors (``priors/{stereo.backend}``)."""
-        return self.fuses == "priors" or self.settings.get("priors", "none") != "none" or \
-            self.settings.get("init") == "priors"
+        return self.fuses == "priors" or uses_priors(self.settings)
 
 
 # The PGSR loss with its planar and multi-view parts switched off is 3DGS's L_rgb.
@@ -70,19 +69,16 @@ BUILTIN_VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 
-def _merge(base: Mapping, over: Mapping) -> dict:
-    out = copy.deepcopy(dict(base))
-    for key, value in over.items():
-        out[key] = _merge(out[key], value) if isinstance(value, Mapping) and isinstance(out.get(key), Mapping) \
-            else copy.deepcopy(value)
-    return out
+def uses_priors(settings: Mapping[str, Any]) -> bool:
+    """Whether joint settings (all of them, or a method's changes) read the stereo priors."""
+    return settings.get("priors", "none") != "none" or settings.get("init") == "priors"
 
 
 def methods(variants: Mapping[str, Mapping] | None = None) -> dict[str, Method]:
     """The registry with the config's ``variants`` applied (new names added, registered
     names' settings changed); an error names the variant that is wrong."""
     out = dict(REGISTRY)
-    pending = _merge(BUILTIN_VARIANTS, variants or {})
+    pending = deep_merge(BUILTIN_VARIANTS, dict(variants or {}))
     while pending:  # a variant may start from another variant
         progress = False
         for name, spec in list(pending.items()):
@@ -103,7 +99,7 @@ def methods(variants: Mapping[str, Mapping] | None = None) -> dict[str, Method]:
             if not base.trains and changes:
                 raise Eve3dError(f"variants.{name}: {base_name} is not trained, it has no settings to change")
             summary = base.summary if name == base_name else f"{base_name} with {_describe(changes)}"
-            out[name] = Method(name, summary, base.fuses, _merge(base.settings, changes))
+            out[name] = Method(name, summary, base.fuses, deep_merge(dict(base.settings), changes))
             del pending[name]
             progress = True
         if not progress:

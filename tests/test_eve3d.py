@@ -51,7 +51,8 @@ def test_lba_reprojection_returns_a_pixel_to_itself_with_exact_depth():
     assert defined.float().mean() > 0.6 and float(phi[defined].max()) < 1e-3
     s = JointSettings(ncc_pixels=400)
     normal, distance = prior_plane(depth, ref)
-    geo, ncc = multiview_pair(ref, nbr, depth, normal, distance, nbr_depth, defined, s, torch.Generator().manual_seed(0))
+    geo, ncc, _ = multiview_pair(ref, nbr, depth, normal, distance, nbr_depth, defined, s,
+                                 torch.Generator().manual_seed(0))
     assert float(geo) < 1e-3
     # 1 − NCC ≈ 0: the true plane's homography aligns the patches (up to the bilinear lookup)
     assert float(ncc[0] / ncc[1]) < 5e-3
