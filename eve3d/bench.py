@@ -172,8 +172,9 @@ def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0, wls: bool 
 
 
 def prior_accuracy(priors_dir, reference_dir, scene: str = "") -> dict:
-    """Median relative depth error and density (confident pixels / pixels with reference
-    depth) of one folder of priors against exact depth (the oracle's folder)."""
+    """Median relative depth error, density (confident pixels / pixels with reference depth)
+    and the fractions of confident pixels off by more than 5 % and 10 % ("confident and
+    wrong") of one folder of priors against exact depth (the oracle's folder)."""
     from pathlib import Path
 
     from eve3d.maps import load_maps
@@ -186,9 +187,10 @@ def prior_accuracy(priors_dir, reference_dir, scene: str = "") -> dict:
         errors.append(np.abs(prior["depth"][use] - ref["depth"][use]) / ref["depth"][use])
         confident, known = confident + int(use.sum()), known + int(has.sum())
     err = np.concatenate(errors) if errors else np.zeros(0)
+    share = lambda x: float((err > x).mean()) if len(err) else float("nan")  # noqa: E731
     return {"data": scene or str(priors_dir), "backend": Path(priors_dir).name,
             "median_rel_error": float(np.median(err)) if len(err) else float("nan"),
-            "density": confident / max(known, 1)}
+            "density": confident / max(known, 1), "wrong_5": share(0.05), "wrong_10": share(0.10)}
 
 
 def format_stereo_tables(moto: list[dict], priors: list[dict]) -> str:
@@ -197,10 +199,18 @@ def format_stereo_tables(moto: list[dict], priors: list[dict]) -> str:
     lines += [f"{r['backend']:<8} {r['size']:<8} {r['density']:7.3f}  {r['epe']:6.3f}  {r['bad2']:9.2f}  "
               f"{r['seconds']:7.2f}" for r in moto]
     if priors:
-        lines += ["", "synthetic scenes: priors against the exact depth, confident pixels",
-                  "scene / priors                              median rel. error  density"]
-        lines += [f"{r['data']:<43} {r['median_rel_error'] * 100:16.2f} %  {r['density']:7.3f}" for r in priors]
+        lines += ["", "synthetic scenes: priors against the exact depth, confident pixels"]
+        lines += prior_lines("scene / priors", [r["data"] for r in priors], priors)
     return "\n".join(lines)
+
+
+def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
+    """A table of :func:`prior_accuracy` rows, one label each."""
+    width = max(len(title), *map(len, labels))
+    lines = [f"{title:<{width}} {'median rel. error':>17} {'density':>8} {'off >5 %':>9} {'off >10 %':>9}"]
+    lines += [f"{label:<{width}} {r['median_rel_error'] * 100:15.2f} % {r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % "
+              f"{r['wrong_10'] * 100:7.1f} %" for label, r in zip(labels, rows)]
+    return lines
 
 
 # --- evaluation ----------------------------------------------------------------------------
@@ -350,8 +360,7 @@ def format_methods_report(report: dict) -> str:
     for scene, stages in report["shared_seconds"].items():
         lines.append(f"  {scene}: " + ", ".join(f"{k} {cell(v, '.0f')} s" for k, v in stages.items()))
     if report["priors"]:
-        lines += ["", "priors against the exact depth, on their confident pixels",
-                  f"{'scene':<22} {'priors':<26} {'median rel. error':>17} {'density':>8}"]
-        lines += [f"{r['data']:<22} {r['priors']:<26} {r['median_rel_error'] * 100:15.2f} % {r['density']:8.3f}"
-                  for r in report["priors"]]
+        lines += ["", "priors against the exact depth, on their confident pixels"]
+        lines += prior_lines("scene / priors", [f"{r['data']} / {r['priors']}" for r in report["priors"]],
+                             report["priors"])
     return "\n".join(lines)

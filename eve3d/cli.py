@@ -31,16 +31,23 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.stereo import render_right_views
+    from eve3d.stereo import BaselineSettings, render_right_views
 
-    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out), a.baseline_factor, a.backend)
-    print(f"wrote {len(info['views'])} right views to {a.out}/right (baseline {info['baseline']:.5g})")
+    baseline = BaselineSettings(mode=a.baseline, factor=a.baseline_factor, target_disparity=a.target_disparity,
+                                max_ratio=a.max_baseline)
+    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out), baseline, a.backend)
+    b = [v["baseline"] for v in info["views"].values()]
+    print(f"wrote {len(b)} right views to {a.out}/right (baseline {min(b):.4g} to {max(b):.4g})")
 
 
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
 
+    from eve3d.stereo import MatchCheck
+
     scene = load_scene(a.scene)
+    check = MatchCheck(ncc_threshold=a.ncc_threshold, ncc_window=a.ncc_window, range_margin=a.range_margin,
+                       mv_ncc_threshold=a.mv_ncc_threshold, mv_views=a.mv_views, mv_neighbours=a.mv_neighbours)
     if a.backend == "oracle":
         from eve3d.priors.oracle import oracle_priors
 
@@ -52,7 +59,7 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
 
         settings = SgbmSettings(block_size=a.block_size, uniqueness=a.uniqueness, lr_threshold=a.lr_threshold,
                                 min_texture=a.min_texture, wls=a.wls, wls_lambda=a.wls_lambda, wls_sigma=a.wls_sigma)
-        sgbm_priors(scene, Path(a.stereo), Path(a.out), settings, preview=not a.no_preview)
+        sgbm_priors(scene, Path(a.stereo), Path(a.out), settings, preview=not a.no_preview, check=check)
     else:
         from eve3d.config import load_mapping
         from eve3d.priors.onnx import OnnxSpec, OnnxStereo
@@ -62,7 +69,8 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
         if not a.onnx:
             raise Eve3dError("--backend onnx needs --onnx SPEC (a YAML/JSON file or inline JSON; config stereo.onnx)")
         spec = settings_from_dict(OnnxSpec, load_mapping(a.onnx, "--onnx"), "stereo.onnx")
-        stereo_priors(scene, Path(a.stereo), Path(a.out), OnnxStereo(spec), "ONNX stereo", preview=not a.no_preview)
+        stereo_priors(scene, Path(a.stereo), Path(a.out), OnnxStereo(spec), "ONNX stereo", preview=not a.no_preview,
+                      check=check)
     print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
 
 
@@ -253,7 +261,7 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from eve3d.stereo import SgbmSettings
+    from eve3d.stereo import BASELINE_MODES, BaselineSettings, MatchCheck, SgbmSettings
     from eve3d.synth import KINDS
 
     p = argparse.ArgumentParser(prog="eve3d", description=__doc__)
@@ -287,7 +295,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--model", required=True, help="pretrained 3DGS PLY (pretrain/point_cloud.ply)")
     s.add_argument("--out", required=True, help="output folder: right/{view}.png and pairs.json (replaced atomically)")
-    s.add_argument("--baseline-factor", type=float, default=0.07, help="baseline B = factor × scene radius")
+    base = BaselineSettings()
+    s.add_argument("--baseline", choices=BASELINE_MODES, default=base.mode,
+                   help="disparity: B per view for --target-disparity at its median depth; radius: the paper's "
+                        "B = --baseline-factor × scene radius")
+    s.add_argument("--baseline-factor", type=float, default=base.factor, help="radius mode: B = factor × scene radius")
+    s.add_argument("--target-disparity", type=float, default=base.target_disparity,
+                   help="disparity mode: disparity at the view's median depth, as a fraction of the image width")
+    s.add_argument("--max-baseline", type=float, default=base.max_ratio,
+                   help="disparity mode: B at most this fraction of the view's median depth")
     s.add_argument("--backend", choices=["auto", "cpu", "torch", "gsplat"], default="auto")
     s.set_defaults(func=_cmd_stereo_render)
 
@@ -310,6 +326,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sgbm: WLS-filter the disparity (dense; confidence = the filter's confidence map)")
     s.add_argument("--wls-lambda", type=float, default=sgbm.wls_lambda, help="WLS smoothness weight")
     s.add_argument("--wls-sigma", type=float, default=sgbm.wls_sigma, help="WLS colour sensitivity")
+    check = MatchCheck()
+    s.add_argument("--ncc-threshold", type=float, default=check.ncc_threshold,
+                   help="sgbm/onnx: confident only where the photo and the right view warped back by the disparity "
+                        "have at least this NCC (0 = off)")
+    s.add_argument("--ncc-window", type=int, default=check.ncc_window, help="NCC window (px)")
+    s.add_argument("--range-margin", type=float, default=check.range_margin,
+                   help="not confident within this many px of either end of the disparity range searched")
+    s.add_argument("--mv-ncc-threshold", type=float, default=check.mv_ncc_threshold,
+                   help="sgbm/onnx: confident only where at least --mv-views of the --mv-neighbours best neighbours' "
+                        "photos, warped by the prior depth, have at least this NCC with the photo (0 = off)")
+    s.add_argument("--mv-views", type=int, default=check.mv_views)
+    s.add_argument("--mv-neighbours", type=int, default=check.mv_neighbours)
     s.add_argument("--no-preview", action="store_true")
     s.set_defaults(func=_cmd_stereo_depth)
 

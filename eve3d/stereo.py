@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from eve3d.fileio import atomic_dir, read_image, write_image
 from eve3d.maps import save_maps
+from eve3d.neighbours import select_neighbours
 from eve3d.scene import Camera, Eve3dError, Scene
 
 
@@ -48,11 +49,11 @@ class SgbmSettings:
     wls_sigma: float = 1.5
 
 
-def _matcher(num_disparities: int, s: SgbmSettings):
+def _matcher(min_disparity: int, num_disparities: int, s: SgbmSettings):
     import cv2
 
     b = s.block_size
-    return cv2.StereoSGBM_create(minDisparity=0, numDisparities=num_disparities, blockSize=b, P1=8 * 3 * b * b,
+    return cv2.StereoSGBM_create(minDisparity=min_disparity, numDisparities=num_disparities, blockSize=b, P1=8 * 3 * b * b,
                                  P2=32 * 3 * b * b, disp12MaxDiff=-1, uniquenessRatio=s.uniqueness,
                                  speckleWindowSize=s.speckle_window, speckleRange=s.speckle_range,
                                  mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
@@ -75,15 +76,17 @@ def left_right_consistent(disp_l: np.ndarray, disp_r: np.ndarray, threshold: flo
 
 
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
-                   s: SgbmSettings | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   s: SgbmSettings | None = None, min_disparity: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Disparity of the left image (float32, px; 0 where invalid) and its confidence (float32
     in [0, 1]): the left–right check against ximgproc's right matcher, or the WLS filter's
-    confidence map, in both cases gated by texture."""
+    confidence map, in both cases gated by texture. Searched from ``min_disparity`` to at
+    least ``max_disparity`` (the range rounded up to a multiple of 16 px)."""
     import cv2
 
     s = s or SgbmSettings()
-    num = int(np.ceil(max(max_disparity, 16) / 16.0)) * 16
-    sgbm = _matcher(num, s)
+    low = int(np.floor(max(min_disparity, 0)))
+    num = int(np.ceil(max(max_disparity - low, 16) / 16.0)) * 16
+    sgbm = _matcher(low, num, s)
     right_matcher = cv2.ximgproc.createRightMatcher(sgbm)
     raw_l, raw_r = sgbm.compute(left, right), right_matcher.compute(right, left)  # 1/16 px; right ≤ 0
     textured = local_std(left, s.block_size) >= s.min_texture
@@ -94,8 +97,10 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
         disp = wls.filter(raw_l, left, disparity_map_right=raw_r).astype(np.float32) / 16.0
         confidence = wls.getConfidenceMap().astype(np.float32) / 255.0
     else:
-        disp = raw_l.astype(np.float32) / 16.0
-        confidence = left_right_consistent(disp, -raw_r.astype(np.float32) / 16.0, s.lr_threshold)
+        # Invalid pixels hold minDisparity − 1 (in 1/16 px), which is positive once the range starts above 1.
+        in_range = lambda raw: np.where((raw >= 16 * low) & (raw < 16 * (low + num)), raw / 16.0, 0)  # noqa: E731
+        disp = in_range(raw_l.astype(np.float32))
+        confidence = left_right_consistent(disp, in_range(-raw_r.astype(np.float32)), s.lr_threshold)
     return np.maximum(disp, 0).astype(np.float32), np.where(textured & (disp > 0), confidence, 0).astype(np.float32)
 
 
@@ -109,43 +114,197 @@ def local_std(image: np.ndarray, size: int) -> np.ndarray:
 
 
 PAIRS_FILE = "pairs.json"
+BASELINE_MODES = ("disparity", "radius")
 
 
-def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline_factor: float = 0.07,
+@dataclass
+class BaselineSettings:
+    """Each view's baseline B (DESIGN §2). ``radius``: the paper's B = ``factor`` × the scene
+    radius, one B for every view. ``disparity``: B per view, so that a point at the view's
+    median rendered depth Z has the disparity ``target_disparity`` × image width, bounded by
+    B ≤ ``max_ratio`` × Z (a vergence of at most 2·atan(max_ratio / 2), so occlusions stay
+    small). A radius-based B gives an inside-out capture, whose camera radius is far smaller
+    than the distance to the walls, disparities of a few pixels."""
+
+    mode: str = "disparity"
+    factor: float = 0.07
+    target_disparity: float = 0.08
+    max_ratio: float = 0.15
+
+    def __post_init__(self) -> None:
+        if self.mode not in BASELINE_MODES:
+            raise Eve3dError(f"stereo.baseline: {self.mode!r} is not one of {', '.join(BASELINE_MODES)}")
+        for key in ("factor", "target_disparity", "max_ratio"):
+            if not getattr(self, key) > 0:
+                raise Eve3dError(f"stereo.{BASELINE_KEYS[key]}: must be > 0, got {getattr(self, key)}")
+
+    def baseline(self, cam: Camera, radius: float, median_depth: float) -> float:
+        if self.mode == "radius":
+            return self.factor * radius
+        return min(self.target_disparity * cam.width / cam.fx, self.max_ratio) * median_depth
+
+
+BASELINE_KEYS = {"mode": "baseline", "factor": "baseline_factor", "target_disparity": "target_disparity",
+                 "max_ratio": "max_baseline"}
+"""Config keys (``stereo.*``) of the BaselineSettings fields."""
+
+
+def margin_camera(cam: Camera, margin: int) -> Camera:
+    """``cam`` with ``margin`` more columns on the left: a left pixel whose match lies up to
+    ``margin`` px left of the frame is still inside the right image."""
+    K = cam.K.copy()
+    K[0, 2] += margin
+    return replace(cam, width=cam.width + margin, K=K)
+
+
+def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: BaselineSettings | None = None,
                        backend: str = "auto") -> dict:
     """``stereo_render``: the right view of every camera rendered by the pre-trained model
-    (``right/{view}.png``), and ``pairs.json``: the baseline and, per view, the largest
-    disparity to search (from the rendered depth's 1st percentile, with a 25 % margin)."""
+    (``right/{view}.png``), and ``pairs.json``: per view the baseline, the disparity range to
+    search (from the left view's rendered depth: 1st and 99th percentiles, with 25 % margins)
+    and ``margin``, the columns the right view extends to the left of the photo's frame so
+    that no left pixel's match falls outside it (a matcher's search range then costs no
+    columns of the photo)."""
     import torch
 
     from eve3d.gaussians import GaussianModel
     from eve3d.render import render
 
+    baseline = baseline or BaselineSettings()
     model = GaussianModel.load_ply(model_path)
-    baseline = baseline_factor * scene.radius
     p = model.params
-    info = {"baseline": baseline, "baseline_factor": baseline_factor, "model": str(model_path), "views": {}}
+
+    def draw(cam: Camera):
+        centre = torch.tensor(cam.center, dtype=torch.float32)
+        return render(p["means"], p["quats"], model.scales, model.opacities, model.colors(centre), cam,
+                      backend=backend, antialiased=True)
+
+    info = {"baseline": asdict(baseline), "model": str(model_path), "views": {}}
     with atomic_dir(out_dir) as tmp, torch.no_grad():
         for cam in tqdm(scene.cameras, desc="rendering right views", unit="view"):
-            right = right_camera(cam, baseline)
-            centre = torch.tensor(right.center, dtype=torch.float32)
-            out = render(p["means"], p["quats"], model.scales, model.opacities, model.colors(centre), right,
-                         backend=backend, antialiased=True)
-            write_image(tmp / "right" / f"{cam.view_id}.png",
-                        (out.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
+            out = draw(cam)
             depth = out.depth_expected[out.alpha > 0.5].numpy()
-            z_near = float(np.percentile(depth, 1)) if len(depth) else 0.1 * scene.radius
-            info["views"][cam.view_id] = {"max_disparity": 1.25 * cam.fx * baseline / max(z_near, 1e-6)}
+            near, median, far = (np.percentile(depth, [1, 50, 99]) if len(depth)
+                                 else np.array([0.1, 1.0, 10.0]) * scene.radius)
+            b = baseline.baseline(cam, scene.radius, float(median))
+            d_min, d_max = 0.75 * cam.fx * b / far, 1.25 * cam.fx * b / max(near, 1e-6)
+            margin = int(np.ceil(d_max)) + 16  # a matcher may round its range up (SGBM: to 16 px)
+            right = draw(margin_camera(right_camera(cam, b), margin))
+            write_image(tmp / "right" / f"{cam.view_id}.png",
+                        (right.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
+            info["views"][cam.view_id] = {"baseline": b, "min_disparity": float(np.floor(d_min)),
+                                          "max_disparity": float(d_max), "margin": margin}
         (tmp / PAIRS_FILE).write_text(json.dumps(info, indent=2))
     return info
 
 
+@dataclass
+class MatchCheck:
+    """Checks every backend's confidence passes through, independent of the matcher agreeing
+    with itself (a left–right check passes a consistent but wrong match)."""
+
+    ncc_threshold: float = 0.5
+    """Confident only where the photo and the right view warped back by the disparity agree:
+    their NCC over ``ncc_window``² pixels is at least this (0 = off)."""
+    ncc_window: int = 7
+    range_margin: float = 1.0
+    """Not confident within this many px of either end of the disparity range searched: a
+    disparity pinned there is the matcher running out of range, not a match."""
+    mv_ncc_threshold: float = 0.5
+    """Confident only where at least ``mv_views`` of the view's ``mv_neighbours`` best
+    neighbours (``eve3d.neighbours``) agree with the photo: NCC ≥ this between the photo and
+    the neighbour's photo warped by the prior depth (0 = off). Real photos on both sides,
+    so it catches a depth the pretrained model got wrong, which the right view inherits."""
+    mv_views: int = 1
+    mv_neighbours: int = 4
+
+    def __post_init__(self) -> None:
+        for key in ("ncc_threshold", "mv_ncc_threshold"):
+            if not 0 <= getattr(self, key) <= 1:
+                raise Eve3dError(f"stereo.{key}: must be in [0, 1], got {getattr(self, key)}")
+        if self.ncc_window < 3 or self.ncc_window % 2 == 0:
+            raise Eve3dError(f"stereo.ncc_window: must be an odd number ≥ 3, got {self.ncc_window}")
+        if not 1 <= self.mv_views <= self.mv_neighbours:
+            raise Eve3dError(f"stereo.mv_views: must be between 1 and stereo.mv_neighbours ({self.mv_neighbours}), "
+                             f"got {self.mv_views}")
+
+
+def stereo_checks_from_config(stereo: dict) -> tuple[BaselineSettings, MatchCheck]:
+    """The baseline and match-check settings of a workflow config's ``stereo`` section
+    (validated: a bad value stops the workflow before any job, naming its key)."""
+    baseline = BaselineSettings(**{f: stereo[k] for f, k in BASELINE_KEYS.items() if k in stereo})
+    return baseline, MatchCheck(**{f.name: stereo[f.name] for f in fields(MatchCheck) if f.name in stereo})
+
+
+def warped_ncc(left: np.ndarray, right: np.ndarray, disp: np.ndarray, margin: int = 0,
+               window: int = 7) -> np.ndarray:
+    """NCC, per pixel over ``window``×``window``, between the left image and the right image
+    sampled at each left pixel's match (x + margin − d, y). Flat windows score 0."""
+    import cv2
+
+    h, w = disp.shape
+    xs = np.arange(w, dtype=np.float32)[None, :] + margin - disp.astype(np.float32)
+    ys = np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w))
+    warped = cv2.remap(_grey(right), np.ascontiguousarray(xs), np.ascontiguousarray(ys), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return _window_ncc(_grey(left), warped, window)
+
+
+def neighbour_ncc(cam: Camera, photo: np.ndarray, depth: np.ndarray, neighbours: list[tuple[Camera, np.ndarray]],
+                  window: int = 7) -> np.ndarray:
+    """(K, H, W): per neighbour, the NCC over ``window``×``window`` between ``photo`` and the
+    neighbour's photo sampled where ``depth`` sends each pixel; −1 where the point falls
+    behind the neighbour or outside its image, or where the depth is 0. Real photos on both
+    sides: a depth that the pretrained model got wrong (and rendered its right view with)
+    does not bring them into agreement."""
+    import cv2
+
+    h, w = depth.shape
+    points = cam.backproject(depth).reshape(-1, 3)
+    out = np.full((len(neighbours), h, w), -1.0, np.float32)
+    for k, (other, image) in enumerate(neighbours):
+        uv, z = other.project(points)
+        inside = other.in_image(uv, z).reshape(h, w) & (depth > 0)
+        maps = (uv.reshape(h, w, 2) - 0.5).astype(np.float32)
+        warped = cv2.remap(_grey(image), np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]),
+                           cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out[k] = np.where(inside, _window_ncc(_grey(photo), warped, window), -1)
+    return out
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    return (image.mean(-1) if image.ndim == 3 else image).astype(np.float32)
+
+
+def _window_ncc(a: np.ndarray, b: np.ndarray, window: int) -> np.ndarray:
+    """NCC of two images over every ``window``×``window`` window; flat windows score 0."""
+    import cv2
+
+    box = lambda x: cv2.blur(x, (window, window))  # noqa: E731
+    ma, mb = box(a), box(b)
+    cov = box(a * b) - ma * mb
+    va, vb = np.maximum(box(a * a) - ma * ma, 0), np.maximum(box(b * b) - mb * mb, 0)
+    return np.where((va > 1e-2) & (vb > 1e-2), cov / np.sqrt(va * vb + 1e-12), 0).astype(np.float32)
+
+
+def checked_confidence(left: np.ndarray, right: np.ndarray, disp: np.ndarray, confidence: np.ndarray,
+                       search: tuple[float, float], margin: int = 0, check: MatchCheck | None = None) -> np.ndarray:
+    """``confidence`` zeroed where a :class:`MatchCheck` fails."""
+    check = check or MatchCheck()
+    ok = (disp > search[0] + check.range_margin) & (disp < search[1] - check.range_margin)
+    if check.ncc_threshold > 0:
+        ok &= warped_ncc(left, right, disp, margin, check.ncc_window) >= check.ncc_threshold
+    return np.where(ok, confidence, 0).astype(np.float32)
+
+
 def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
-                  matcher: Callable[[np.ndarray, np.ndarray, float], tuple[np.ndarray, np.ndarray]],
-                  name: str, preview: bool = True) -> None:
-    """``stereo_depth`` for a disparity backend: ``matcher(left, right, max_disparity)`` gives
-    the left disparity and its confidence; depth Z = fx·B/d and normals from the depth are
-    written for every view (``{view}.npz`` and PNG previews)."""
+                  matcher: Callable[[np.ndarray, np.ndarray, tuple[float, float]], tuple[np.ndarray, np.ndarray]],
+                  name: str, preview: bool = True, check: MatchCheck | None = None) -> None:
+    """``stereo_depth`` for a disparity backend: ``matcher(left, right, (min, max))`` gives
+    the left disparity and its confidence on the pair (the photo, padded on the left by the
+    view's margin, and its right view); the confidence passes through ``check``; depth
+    Z = fx·B/d and normals from the depth are written for every view (``{view}.npz`` and PNG
+    previews)."""
     import torch
 
     from eve3d.losses import depth_to_normal
@@ -155,24 +314,41 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
     if not pairs_path.exists():
         raise Eve3dError(f"{pairs_path}: missing; run `eve3d stereo-render` first")
     pairs = json.loads(pairs_path.read_text())
-    baseline = float(pairs["baseline"])
+    check = check or MatchCheck()
+    neighbours = select_neighbours(scene, check.mv_neighbours)
     with atomic_dir(out_dir) as tmp:
-        for cam in tqdm(scene.cameras, desc=name, unit="view"):
-            if cam.view_id not in pairs["views"]:
+        for cam, near in zip(tqdm(scene.cameras, desc=name, unit="view"), neighbours):
+            pair = pairs.get("views", {}).get(cam.view_id)
+            if pair is None:
                 raise Eve3dError(f"{pairs_path}: no right view for {cam.view_id}")
+            if not PAIR_KEYS <= pair.keys():
+                raise Eve3dError(f"{pairs_path}: view {cam.view_id} lacks {', '.join(sorted(PAIR_KEYS - pair.keys()))}"
+                                 " (written by an older eve3d); run `eve3d stereo-render` again")
+            margin, search = int(pair["margin"]), (float(pair["min_disparity"]), float(pair["max_disparity"]))
             left = read_image(cam.image_path)
-            right = read_image(stereo_dir / "right" / f"{cam.view_id}.png")
-            if right.shape != left.shape:
-                raise Eve3dError(f"{stereo_dir / 'right' / cam.view_id}.png: {right.shape[1]}×{right.shape[0]}, "
-                                 f"the photo is {left.shape[1]}×{left.shape[0]}")
-            disp, confidence = matcher(left, right, pairs["views"][cam.view_id]["max_disparity"])
-            depth = np.where(disp > 0, cam.fx * baseline / np.maximum(disp, 1e-6), 0).astype(np.float32)
+            right_path = stereo_dir / "right" / f"{cam.view_id}.png"
+            right = read_image(right_path)
+            if right.shape[0] != left.shape[0] or right.shape[1] != left.shape[1] + margin:
+                raise Eve3dError(f"{right_path}: {right.shape[1]}×{right.shape[0]}, expected the photo's "
+                                 f"{left.shape[1]}×{left.shape[0]} plus {margin} columns on the left")
+            padded = np.pad(left, ((0, 0), (margin, 0)) + ((0, 0),) * (left.ndim - 2))
+            disp, confidence = (m[:, margin:] for m in matcher(padded, right, search))
+            confidence = checked_confidence(left, right, disp, confidence, search, margin, check)
+            depth = np.where(disp > 0, cam.fx * float(pair["baseline"]) / np.maximum(disp, 1e-6), 0).astype(np.float32)
+            if check.mv_ncc_threshold > 0 and len(near) >= check.mv_views:
+                others = [(scene.cameras[j], read_image(scene.cameras[j].image_path)) for j in near]
+                agree = (neighbour_ncc(cam, left, depth, others, check.ncc_window) >= check.mv_ncc_threshold).sum(0)
+                confidence = np.where(agree >= check.mv_views, confidence, 0).astype(np.float32)
             normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()
             save_maps(tmp / f"{cam.view_id}.npz", preview=preview, depth=depth,
                       confidence=confidence.astype(np.float32), normal=normal)
 
 
+PAIR_KEYS = {"baseline", "min_disparity", "max_disparity", "margin"}
+
+
 def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSettings | None = None,
-                preview: bool = True) -> None:
+                preview: bool = True, check: MatchCheck | None = None) -> None:
     """``stereo_depth --backend sgbm``."""
-    stereo_priors(scene, stereo_dir, out_dir, lambda l, r, m: sgbm_disparity(l, r, m, settings), "SGBM", preview)
+    stereo_priors(scene, stereo_dir, out_dir, lambda l, r, search: sgbm_disparity(l, r, search[1], settings, search[0]),
+                  "SGBM", preview, check)

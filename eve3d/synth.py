@@ -8,7 +8,8 @@ pattern (``tiles``), beside value-noise textures that SfM can match.
 Kinds (``KINDS``): ``object`` (a DTU-like object on a table, cameras around and above it),
 ``room`` (a Meetingroom-like room, cameras on a loop inside it), ``vase`` (a hollow vase and a
 box on the ground: surfaces no camera sees, inside the vase and under the box) and
-``inside-room`` (the room seen from cameras clustered near its centre, looking outwards).
+``inside-room`` (the room seen from cameras clustered near its centre, looking outwards) and
+``dark-room`` (the same capture of the room with dark, low-contrast walls and ceiling).
 
 Output, laid out the way a user brings data:
 ``images/*.png``, ``sparse/0/`` (COLMAP model with the exact poses and visible surface points;
@@ -141,20 +142,25 @@ def object_parts() -> list[Part]:
     ]
 
 
-def room_parts() -> list[Part]:
-    """A Meetingroom-like box room with a table and furniture, seen from inside."""
+def room_parts(dark: bool = False) -> list[Part]:
+    """A Meetingroom-like box room with a table and furniture, seen from inside. ``dark``:
+    walls and ceiling dark and of low contrast (colours at 30 %, their noise at a third of
+    its contrast), the hard case for stereo matching."""
     import open3d as o3d
 
     X, Y, Z = 3.0, 2.5, 2.6
-    wall = Material("noise", (0.8, 0.75, 0.65), (0.35, 0.3, 0.25), scale=4.0)
+    surround = _dim if dark else (lambda m: m)
+    wall = surround(Material("noise", (0.8, 0.75, 0.65), (0.35, 0.3, 0.25), scale=4.0))
     sphere = o3d.geometry.TriangleMesh.create_sphere(0.2, resolution=32)
     sphere.translate([0.3, 0.2, 0.95])
     return [
         Part(_quad([(-X, -Y, 0), (X, -Y, 0), (X, Y, 0), (-X, Y, 0)]), Material("tiles", (0.8, 0.8, 0.78), (0.3, 0.25, 0.2), scale=0.5)),
-        Part(_quad([(-X, -Y, Z), (-X, Y, Z), (X, Y, Z), (X, -Y, Z)]), Material("noise", (0.9, 0.9, 0.88), (0.6, 0.6, 0.6), scale=2.0)),
-        Part(_quad([(X, -Y, 0), (X, -Y, Z), (X, Y, Z), (X, Y, 0)]), Material("flat", (0.82, 0.84, 0.86))),
+        Part(_quad([(-X, -Y, Z), (-X, Y, Z), (X, Y, Z), (X, -Y, Z)]),
+             surround(Material("noise", (0.9, 0.9, 0.88), (0.6, 0.6, 0.6), scale=2.0))),
+        Part(_quad([(X, -Y, 0), (X, -Y, Z), (X, Y, Z), (X, Y, 0)]), surround(Material("flat", (0.82, 0.84, 0.86)))),
         Part(_quad([(-X, -Y, 0), (-X, Y, 0), (-X, Y, Z), (-X, -Y, Z)]), wall),
-        Part(_quad([(-X, Y, 0), (X, Y, 0), (X, Y, Z), (-X, Y, Z)]), Material("noise", (0.5, 0.6, 0.75), (0.15, 0.2, 0.3), scale=4.0)),
+        Part(_quad([(-X, Y, 0), (X, Y, 0), (X, Y, Z), (-X, Y, Z)]),
+             surround(Material("noise", (0.5, 0.6, 0.75), (0.15, 0.2, 0.3), scale=4.0))),
         Part(_quad([(-X, -Y, 0), (-X, -Y, Z), (X, -Y, Z), (X, -Y, 0)]), wall),
         Part(_box((1.6, 0.9, 0.08), (0.2, 0.1, 0.75)), Material("noise", (0.55, 0.35, 0.2), (0.3, 0.15, 0.05), scale=6.0)),
         Part(_box((1.3, 0.7, 0.71), (0.2, 0.1, 0.355)), Material("noise", (0.35, 0.2, 0.1), (0.6, 0.45, 0.3), scale=6.0)),
@@ -162,6 +168,13 @@ def room_parts() -> list[Part]:
         Part(_box((0.9, 0.5, 1.8), (2.3, 1.9, 0.9)), Material("tiles", (0.9, 0.9, 0.9), (0.2, 0.2, 0.25), scale=0.15)),
         Part(sphere, Material("noise", (0.9, 0.8, 0.2), (0.3, 0.2, 0.1), scale=10.0)),
     ]
+
+
+def _dim(m: Material, level: float = 0.3, contrast: float = 1 / 3) -> Material:
+    """``m`` darker (colours × ``level``) and of lower contrast (its second colour moved
+    toward the first, keeping ``contrast`` of the difference)."""
+    a, b = np.asarray(m.color_a) * level, np.asarray(m.color_b) * level
+    return Material(m.pattern, tuple(a), tuple(a + contrast * (b - a)), m.scale)
 
 
 def _lathe(profile: list[tuple[float, float]], segments: int = 64):
@@ -278,6 +291,7 @@ KINDS: dict[str, Kind] = {
     "room": Kind(room_parts, room_cameras, "scene"),
     "vase": Kind(vase_parts, object_cameras, "object"),
     "inside-room": Kind(room_parts, inside_cameras, "scene"),
+    "dark-room": Kind(lambda: room_parts(dark=True), inside_cameras, "scene"),
 }
 
 

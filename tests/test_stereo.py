@@ -7,7 +7,8 @@ import pytest
 from eve3d.bench import stereo_motorcycle
 from eve3d.maps import load_maps
 from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.stereo import PAIRS_FILE, SgbmSettings, right_camera, sgbm_disparity, sgbm_priors
+from eve3d.stereo import (PAIRS_FILE, BaselineSettings, SgbmSettings, checked_confidence, local_std,
+                          render_right_views, right_camera, sgbm_disparity, sgbm_priors)
 
 
 def test_right_camera_gives_disparity_fx_b_over_z():
@@ -29,11 +30,12 @@ def test_sgbm_on_motorcycle_meets_the_bar():
     assert r["density"] >= 0.80 and r["bad2"] <= 8.0
 
 
-def shifted_pair(disparity: int, h: int = 96, w: int = 128):
+def shifted_pair(disparity: int, h: int = 96, w: int = 128, grain: int = 4):
+    """A textured pair with a constant disparity: random values upsampled ``grain`` times."""
     rng = np.random.default_rng(1)
     import cv2
 
-    tex = cv2.resize(rng.integers(0, 255, (h // 4, (w + disparity) // 4, 3)).astype(np.uint8),
+    tex = cv2.resize(rng.integers(0, 255, (h // grain, (w + disparity) // grain, 3)).astype(np.uint8),
                      (w + disparity, h), interpolation=cv2.INTER_CUBIC)
     return np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, disparity:])  # x_right = x_left − d
 
@@ -71,7 +73,7 @@ def stereo_scene(tmp_path, disparity: int, baseline: float = 0.5):
     cv2.imwrite(str(tmp_path / "stereo/right/v.png"), right[..., ::-1])
     K = np.array([[100.0, 0, 64], [0, 100, 48], [0, 0, 1]])
     scene = Scene(tmp_path, [Camera("v.png", 128, 96, K, np.eye(3), np.zeros(3), image_path=tmp_path / "v.png")])
-    pairs = {"baseline": baseline, "views": {"v": {"max_disparity": 3 * disparity}}}
+    pairs = {"views": {"v": {"baseline": baseline, "min_disparity": 0, "max_disparity": 3 * disparity, "margin": 0}}}
     return scene, lambda: (tmp_path / "stereo" / PAIRS_FILE).write_text(json.dumps(pairs))
 
 
@@ -86,3 +88,104 @@ def test_sgbm_priors_write_depth_fx_b_over_d(tmp_path):
     assert sure.mean() > 0.5
     np.testing.assert_allclose(np.median(maps["depth"][sure]), 100 * 0.5 / 10, rtol=1e-3)
     assert (tmp_path / "priors/v.depth.png").exists() and (tmp_path / "priors/v.confidence.png").exists()
+
+
+def test_a_shifted_disparity_loses_its_confidence():
+    """The photometric check does not rest on the matcher: the true disparity keeps its
+    confidence, the same map shifted by a few pixels (consistent, but wrong) loses it, and
+    so does a disparity pinned at the end of the range searched."""
+    left, right = shifted_pair(12, grain=2)
+    sure = np.ones(left.shape[:2], np.float32)
+    kept = lambda disp: checked_confidence(left, right, disp, sure, (0, 40))[:, 20:].mean()  # noqa: E731
+    true = np.full(left.shape[:2], 12.0, np.float32)
+    assert kept(true) > 0.95
+    for shift in (3, -3, 5):
+        assert kept(true + shift) < 0.1, shift
+    assert kept(np.full_like(true, 39.5)) == 0
+
+
+def plane_model(tmp_path, depth: float, cam: Camera):
+    """Gaussians on a textured fronto-parallel plane at ``depth`` in front of ``cam``."""
+    from eve3d.gaussians import GaussianModel
+
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.linspace(-1.2, 1.2, 160), np.linspace(-0.9, 0.9, 120))
+    points = np.stack([u.ravel() * depth, v.ravel() * depth, np.full(u.size, depth)], 1)
+    colors = np.repeat(rng.uniform(0, 1, (u.size, 1)), 3, axis=1)
+    model = GaussianModel.from_points(points, colors, sh_degree=0, opacity=0.99)
+    model.save_ply(tmp_path / "model.ply")
+    return tmp_path / "model.ply"
+
+
+def test_disparity_baseline_gives_the_target_disparity_at_the_median_depth(tmp_path):
+    """On a synthetic pair (a textured plane 4 units away) the per-view baseline makes the
+    disparity at the median depth the target fraction of the width; SGBM finds it on the
+    rendered pair, including near the left edge (the right view's margin), and the depth
+    it gives back is the plane's. The bound B ≤ max_ratio × Z holds."""
+    import torch
+
+    from eve3d.fileio import write_image
+    from eve3d.gaussians import GaussianModel
+    from eve3d.render import render
+
+    K = np.array([[80.0, 0, 48], [0, 80, 36], [0, 0, 1]])
+    cam = Camera("v.png", 96, 72, K, np.eye(3), np.zeros(3), image_path=tmp_path / "v.png")
+    model = GaussianModel.load_ply(plane_model(tmp_path, 4.0, cam))
+    with torch.no_grad():
+        photo = render(model.params["means"], model.params["quats"], model.scales, model.opacities,
+                       model.colors(torch.zeros(3)), cam, antialiased=True).rgb
+    write_image(cam.image_path, (photo.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
+    scene = Scene(tmp_path, [cam])
+    info = render_right_views(scene, tmp_path / "model.ply", tmp_path / "stereo", BaselineSettings(target_disparity=10 / 96))
+    pair = info["views"]["v"]
+    assert pair["baseline"] * 80 / 4.0 == pytest.approx(10, rel=0.02)  # an integer: SGBM pixel-locks
+    assert pair["max_disparity"] < pair["margin"]
+    sgbm_priors(scene, tmp_path / "stereo", tmp_path / "priors")
+    maps = load_maps(tmp_path / "priors/v.npz")
+    sure = maps["confidence"] > 0.5
+    assert sure.mean() > 0.6 and sure[:, :20].mean() > 0.5  # the left edge keeps its matches
+    np.testing.assert_allclose(np.median(maps["depth"][sure]), 4.0, rtol=0.01)
+    bounded = BaselineSettings(target_disparity=0.5, max_ratio=0.15)
+    assert bounded.baseline(cam, 1.0, 4.0) == pytest.approx(0.6)
+    assert BaselineSettings(mode="radius", factor=0.07).baseline(cam, 3.0, 4.0) == pytest.approx(0.21)
+    with pytest.raises(Eve3dError, match="stereo.target_disparity"):
+        BaselineSettings(target_disparity=0)
+
+
+def test_neighbour_photos_agree_with_the_exact_depth_and_not_with_a_wrong_one(object_scene):
+    """The multi-view check compares real photos: warped by the exact depth, a view's
+    neighbours agree with it; by a depth 8 % too far (what a wrongly placed pretrained model
+    would give the right view, and SGBM would then find), they do not."""
+    from eve3d.fileio import read_image
+    from eve3d.neighbours import select_neighbours
+    from eve3d.raycast import MeshRaycaster
+    from eve3d.stereo import neighbour_ncc
+
+    cams = object_scene.cameras
+    i, near = 0, select_neighbours(object_scene, 4)[0]
+    hits = MeshRaycaster.from_file(object_scene.gt_mesh).cast(cams[i])
+    depth = np.where(hits.valid, hits.depth, 0).astype(np.float32)
+    photo = read_image(cams[i].image_path)
+    others = [(cams[j], read_image(cams[j].image_path)) for j in near]
+    textured = hits.valid & (local_std(photo, 7) > 4)
+    agree = lambda d: ((neighbour_ncc(cams[i], photo, d, others) >= 0.5).sum(0) >= 2)[textured].mean()  # noqa: E731
+    assert agree(depth) > 0.85  # measured 0.92
+    assert agree(1.08 * depth) < 0.45  # measured 0.35
+
+
+def test_dark_room_is_the_inside_room_darker_and_flatter(tmp_path):
+    """The hard case for stereo: the same capture as ``inside-room`` (same cameras), with
+    walls and ceiling dark and of low contrast."""
+    from eve3d.fileio import read_image
+    from eve3d.synth import generate
+
+    images = {}
+    for kind in ("inside-room", "dark-room"):
+        scene = generate(kind, tmp_path / kind, views=3, width=80, height=60)
+        images[kind] = np.stack([read_image(p) for p in sorted((scene / "images").glob("*.png"))])
+    bright, dark = images["inside-room"].astype(float), images["dark-room"].astype(float)
+    walls = np.abs(bright - dark).max(-1) > 2  # the rest (floor, furniture) is unchanged
+    assert 0.2 < walls.mean() < 0.9 and np.abs(bright - dark)[~walls].max() <= 2
+    assert dark[walls].mean() < 0.4 * bright[walls].mean()
+    spread = lambda im: np.median(np.stack([local_std(v, 5) for v in im])[walls])  # noqa: E731
+    assert spread(dark) < 0.4 * spread(bright)

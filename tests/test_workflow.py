@@ -50,6 +50,12 @@ def test_bad_config_value_is_named(tmp_path):
     assert "mesh.voxel" in r.stdout + r.stderr and "-0.5" in r.stdout + r.stderr
 
 
+def test_bad_stereo_check_is_named_before_any_job(tmp_path):
+    cfg = write_config(tmp_path, stereo={"mv_views": 5, "mv_neighbours": 4})
+    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode != 0 and "stereo.mv_views" in r.stdout + r.stderr
+
+
 def test_bad_training_key_is_named_before_any_job(tmp_path):
     cfg = write_config(tmp_path, joint={"scale_wieght": 1.0})
     r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")

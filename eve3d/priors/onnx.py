@@ -118,7 +118,7 @@ class OnnxStereo:
                              f"{feeds[self.spec.left].shape} (model expects {self.input_shape}): {e}") from None
         return self._output(out)
 
-    def __call__(self, left: np.ndarray, right: np.ndarray, max_disparity: float | None = None
+    def __call__(self, left: np.ndarray, right: np.ndarray, search: tuple[float, float] | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
         """Left disparity (0 where not positive) and the left–right check, for
         :func:`eve3d.stereo.stereo_priors`."""

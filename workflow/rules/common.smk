@@ -51,8 +51,10 @@ METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
 try:
     from eve3d.joint import JointSettings
     from eve3d.pretrain import PretrainSettings
+    from eve3d.stereo import stereo_checks_from_config
 
     stage_settings(PretrainSettings, "pretrain", config)
+    stereo_checks_from_config(config["stereo"])
     for _name in TRAINED:
         stage_settings(JointSettings, "joint", config, overrides=METHOD[_name].settings)
     if config["stereo"]["backend"] == "onnx":
@@ -149,9 +151,11 @@ def stereo_depth_args(wildcards, input):
     if wildcards.backend == "oracle":
         return f"--gt-mesh {gt_mesh(wildcards)}"
     s = config["stereo"]
+    check = "".join(f" --{key.replace('_', '-')} {s[key]}" for key in
+                    ("ncc_threshold", "ncc_window", "range_margin", "mv_ncc_threshold", "mv_views", "mv_neighbours"))
     if wildcards.backend == "onnx":
-        return f"--stereo {input.stereo} --onnx {shlex.quote(json.dumps(s['onnx']))}"
-    return (f"--stereo {input.stereo} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"
+        return f"--stereo {input.stereo} --onnx {shlex.quote(json.dumps(s['onnx']))}" + check
+    return (f"--stereo {input.stereo}{check} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"
             f" --lr-threshold {s['lr_threshold']} --min-texture {s['min_texture']}"
             + (f" --wls --wls-lambda {s['wls_lambda']} --wls-sigma {s['wls_sigma']}" if s["wls"] else ""))
 

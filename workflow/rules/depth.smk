@@ -9,7 +9,8 @@ rule stereo_render:
     output:
         directory(f"{RESULTS}/{{scene}}/stereo"),
     params:
-        baseline=lambda wc: config["stereo"]["baseline_factor"],
+        baseline=lambda wc: " ".join(f"--{key.replace('_', '-')} {config['stereo'][key]}"
+                                     for key in ("baseline", "baseline_factor", "target_disparity", "max_baseline")),
     log:
         f"{RESULTS}/logs/{{scene}}/stereo_render.log",
     benchmark:
@@ -18,7 +19,7 @@ rule stereo_render:
         CONDA_ENV
     shell:
         "{EVE3D} stereo-render --scene {input.scene} --model {input.model} --out {output}"
-        " --baseline-factor {params.baseline} > {log} 2>&1"
+        " {params.baseline} > {log} 2>&1"
 
 
 rule stereo_depth:
