@@ -31,11 +31,10 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.stereo import BaselineSettings, render_right_views
+    from eve3d.stereo import BaselineSettings, render_right_views, settings_of
 
-    baseline = BaselineSettings(mode=a.baseline, factor=a.baseline_factor, target_disparity=a.target_disparity,
-                                max_ratio=a.max_baseline)
-    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out), baseline, a.backend)
+    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out), settings_of(BaselineSettings, a),
+                              a.backend)
     b = [v["baseline"] for v in info["views"].values()]
     print(f"wrote {len(b)} right views to {a.out}/right (baseline {min(b):.4g} to {max(b):.4g})")
 
@@ -43,11 +42,10 @@ def _cmd_stereo_render(a: argparse.Namespace) -> None:
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
 
-    from eve3d.stereo import MatchCheck
+    from eve3d.stereo import MatchCheck, settings_of
 
     scene = load_scene(a.scene)
-    check = MatchCheck(ncc_threshold=a.ncc_threshold, ncc_window=a.ncc_window, range_margin=a.range_margin,
-                       mv_ncc_threshold=a.mv_ncc_threshold, mv_views=a.mv_views, mv_neighbours=a.mv_neighbours)
+    check = settings_of(MatchCheck, a)
     if a.backend == "oracle":
         from eve3d.priors.oracle import oracle_priors
 
@@ -296,13 +294,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--model", required=True, help="pretrained 3DGS PLY (pretrain/point_cloud.ply)")
     s.add_argument("--out", required=True, help="output folder: right/{view}.png and pairs.json (replaced atomically)")
     base = BaselineSettings()
-    s.add_argument("--baseline", choices=BASELINE_MODES, default=base.mode,
+    s.add_argument("--baseline", choices=BASELINE_MODES, default=base.baseline,
                    help="disparity: B per view for --target-disparity at its median depth; radius: the paper's "
                         "B = --baseline-factor × scene radius")
-    s.add_argument("--baseline-factor", type=float, default=base.factor, help="radius mode: B = factor × scene radius")
+    s.add_argument("--baseline-factor", type=float, default=base.baseline_factor,
+                   help="radius mode: B = factor × scene radius")
     s.add_argument("--target-disparity", type=float, default=base.target_disparity,
                    help="disparity mode: disparity at the view's median depth, as a fraction of the image width")
-    s.add_argument("--max-baseline", type=float, default=base.max_ratio,
+    s.add_argument("--max-baseline", type=float, default=base.max_baseline,
                    help="disparity mode: B at most this fraction of the view's median depth")
     s.add_argument("--backend", choices=["auto", "cpu", "torch", "gsplat"], default="auto")
     s.set_defaults(func=_cmd_stereo_render)

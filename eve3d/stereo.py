@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -119,34 +120,30 @@ BASELINE_MODES = ("disparity", "radius")
 
 @dataclass
 class BaselineSettings:
-    """Each view's baseline B (DESIGN §2). ``radius``: the paper's B = ``factor`` × the scene
-    radius, one B for every view. ``disparity``: B per view, so that a point at the view's
-    median rendered depth Z has the disparity ``target_disparity`` × image width, bounded by
-    B ≤ ``max_ratio`` × Z (a vergence of at most 2·atan(max_ratio / 2), so occlusions stay
-    small). A radius-based B gives an inside-out capture, whose camera radius is far smaller
-    than the distance to the walls, disparities of a few pixels."""
+    """Each view's baseline B (DESIGN §2); the fields are the ``stereo.*`` config keys.
+    ``baseline: radius``: the paper's B = ``baseline_factor`` × the scene radius, one B for
+    every view. ``baseline: disparity``: B per view, so that a point at the view's median
+    rendered depth Z has the disparity ``target_disparity`` × image width, bounded by
+    B ≤ ``max_baseline`` × Z (a vergence of at most 2·atan(max_baseline / 2), so occlusions
+    stay small). A radius-based B gives an inside-out capture, whose camera radius is far
+    smaller than the distance to the walls, disparities of a few pixels."""
 
-    mode: str = "disparity"
-    factor: float = 0.07
+    baseline: str = "disparity"
+    baseline_factor: float = 0.07
     target_disparity: float = 0.08
-    max_ratio: float = 0.15
+    max_baseline: float = 0.15
 
     def __post_init__(self) -> None:
-        if self.mode not in BASELINE_MODES:
-            raise Eve3dError(f"stereo.baseline: {self.mode!r} is not one of {', '.join(BASELINE_MODES)}")
-        for key in ("factor", "target_disparity", "max_ratio"):
+        if self.baseline not in BASELINE_MODES:
+            raise Eve3dError(f"stereo.baseline: {self.baseline!r} is not one of {', '.join(BASELINE_MODES)}")
+        for key in ("baseline_factor", "target_disparity", "max_baseline"):
             if not getattr(self, key) > 0:
-                raise Eve3dError(f"stereo.{BASELINE_KEYS[key]}: must be > 0, got {getattr(self, key)}")
+                raise Eve3dError(f"stereo.{key}: must be > 0, got {getattr(self, key)}")
 
-    def baseline(self, cam: Camera, radius: float, median_depth: float) -> float:
-        if self.mode == "radius":
-            return self.factor * radius
-        return min(self.target_disparity * cam.width / cam.fx, self.max_ratio) * median_depth
-
-
-BASELINE_KEYS = {"mode": "baseline", "factor": "baseline_factor", "target_disparity": "target_disparity",
-                 "max_ratio": "max_baseline"}
-"""Config keys (``stereo.*``) of the BaselineSettings fields."""
+    def of_view(self, cam: Camera, radius: float, median_depth: float) -> float:
+        if self.baseline == "radius":
+            return self.baseline_factor * radius
+        return min(self.target_disparity * cam.width / cam.fx, self.max_baseline) * median_depth
 
 
 def margin_camera(cam: Camera, margin: int) -> Camera:
@@ -186,7 +183,7 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
             depth = out.depth_expected[out.alpha > 0.5].numpy()
             near, median, far = (np.percentile(depth, [1, 50, 99]) if len(depth)
                                  else np.array([0.1, 1.0, 10.0]) * scene.radius)
-            b = baseline.baseline(cam, scene.radius, float(median))
+            b = baseline.of_view(cam, scene.radius, float(median))
             d_min, d_max = 0.75 * cam.fx * b / far, 1.25 * cam.fx * b / max(near, 1e-6)
             margin = int(np.ceil(d_max)) + 16  # a matcher may round its range up (SGBM: to 16 px)
             right = draw(margin_camera(right_camera(cam, b), margin))
@@ -229,11 +226,12 @@ class MatchCheck:
                              f"got {self.mv_views}")
 
 
-def stereo_checks_from_config(stereo: dict) -> tuple[BaselineSettings, MatchCheck]:
-    """The baseline and match-check settings of a workflow config's ``stereo`` section
-    (validated: a bad value stops the workflow before any job, naming its key)."""
-    baseline = BaselineSettings(**{f: stereo[k] for f, k in BASELINE_KEYS.items() if k in stereo})
-    return baseline, MatchCheck(**{f.name: stereo[f.name] for f in fields(MatchCheck) if f.name in stereo})
+def settings_of(cls: type, values) -> object:
+    """``cls`` (BaselineSettings, MatchCheck) from the fields ``values`` holds, a mapping
+    (a config's ``stereo`` section: validated, a bad value names its key) or parsed CLI
+    arguments."""
+    get = values.get if isinstance(values, dict) else lambda k, d=None: getattr(values, k, d)
+    return cls(**{f.name: get(f.name) for f in fields(cls) if get(f.name) is not None})
 
 
 def warped_ncc(left: np.ndarray, right: np.ndarray, disp: np.ndarray, margin: int = 0,
@@ -261,6 +259,7 @@ def neighbour_ncc(cam: Camera, photo: np.ndarray, depth: np.ndarray, neighbours:
 
     h, w = depth.shape
     points = cam.backproject(depth).reshape(-1, 3)
+    grey = _grey(photo)
     out = np.full((len(neighbours), h, w), -1.0, np.float32)
     for k, (other, image) in enumerate(neighbours):
         uv, z = other.project(points)
@@ -268,7 +267,7 @@ def neighbour_ncc(cam: Camera, photo: np.ndarray, depth: np.ndarray, neighbours:
         maps = (uv.reshape(h, w, 2) - 0.5).astype(np.float32)
         warped = cv2.remap(_grey(image), np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]),
                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        out[k] = np.where(inside, _window_ncc(_grey(photo), warped, window), -1)
+        out[k] = np.where(inside, _window_ncc(grey, warped, window), -1)
     return out
 
 
@@ -316,8 +315,10 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
     pairs = json.loads(pairs_path.read_text())
     check = check or MatchCheck()
     neighbours = select_neighbours(scene, check.mv_neighbours)
+    # neighbours are mostly the views around: a few decoded photos serve several views
+    photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: read_image(scene.cameras[j].image_path))
     with atomic_dir(out_dir) as tmp:
-        for cam, near in zip(tqdm(scene.cameras, desc=name, unit="view"), neighbours):
+        for i, (cam, near) in enumerate(zip(tqdm(scene.cameras, desc=name, unit="view"), neighbours)):
             pair = pairs.get("views", {}).get(cam.view_id)
             if pair is None:
                 raise Eve3dError(f"{pairs_path}: no right view for {cam.view_id}")
@@ -325,7 +326,7 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
                 raise Eve3dError(f"{pairs_path}: view {cam.view_id} lacks {', '.join(sorted(PAIR_KEYS - pair.keys()))}"
                                  " (written by an older eve3d); run `eve3d stereo-render` again")
             margin, search = int(pair["margin"]), (float(pair["min_disparity"]), float(pair["max_disparity"]))
-            left = read_image(cam.image_path)
+            left = photo(i)
             right_path = stereo_dir / "right" / f"{cam.view_id}.png"
             right = read_image(right_path)
             if right.shape[0] != left.shape[0] or right.shape[1] != left.shape[1] + margin:
@@ -336,7 +337,7 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
             confidence = checked_confidence(left, right, disp, confidence, search, margin, check)
             depth = np.where(disp > 0, cam.fx * float(pair["baseline"]) / np.maximum(disp, 1e-6), 0).astype(np.float32)
             if check.mv_ncc_threshold > 0 and len(near) >= check.mv_views:
-                others = [(scene.cameras[j], read_image(scene.cameras[j].image_path)) for j in near]
+                others = [(scene.cameras[j], photo(j)) for j in near]
                 agree = (neighbour_ncc(cam, left, depth, others, check.ncc_window) >= check.mv_ncc_threshold).sum(0)
                 confidence = np.where(agree >= check.mv_views, confidence, 0).astype(np.float32)
             normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()

@@ -121,7 +121,7 @@ def test_disparity_baseline_gives_the_target_disparity_at_the_median_depth(tmp_p
     """On a synthetic pair (a textured plane 4 units away) the per-view baseline makes the
     disparity at the median depth the target fraction of the width; SGBM finds it on the
     rendered pair, including near the left edge (the right view's margin), and the depth
-    it gives back is the plane's. The bound B ≤ max_ratio × Z holds."""
+    it gives back is the plane's. The bound B ≤ max_baseline × Z holds."""
     import torch
 
     from eve3d.fileio import write_image
@@ -145,9 +145,9 @@ def test_disparity_baseline_gives_the_target_disparity_at_the_median_depth(tmp_p
     sure = maps["confidence"] > 0.5
     assert sure.mean() > 0.6 and sure[:, :20].mean() > 0.5  # the left edge keeps its matches
     np.testing.assert_allclose(np.median(maps["depth"][sure]), 4.0, rtol=0.01)
-    bounded = BaselineSettings(target_disparity=0.5, max_ratio=0.15)
-    assert bounded.baseline(cam, 1.0, 4.0) == pytest.approx(0.6)
-    assert BaselineSettings(mode="radius", factor=0.07).baseline(cam, 3.0, 4.0) == pytest.approx(0.21)
+    bounded = BaselineSettings(target_disparity=0.5, max_baseline=0.15)
+    assert bounded.of_view(cam, 1.0, 4.0) == pytest.approx(0.6)
+    assert BaselineSettings(baseline="radius", baseline_factor=0.07).of_view(cam, 3.0, 4.0) == pytest.approx(0.21)
     with pytest.raises(Eve3dError, match="stereo.target_disparity"):
         BaselineSettings(target_disparity=0)
 

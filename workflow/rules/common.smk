@@ -1,4 +1,5 @@
 # Configuration and input functions shared by every rule.
+import dataclasses
 import json
 import os
 import shlex
@@ -10,6 +11,7 @@ from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_valu
 from eve3d.evaluate import cli_flag
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
+from eve3d.stereo import BaselineSettings, MatchCheck, settings_of
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")
@@ -51,10 +53,10 @@ METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
 try:
     from eve3d.joint import JointSettings
     from eve3d.pretrain import PretrainSettings
-    from eve3d.stereo import stereo_checks_from_config
 
     stage_settings(PretrainSettings, "pretrain", config)
-    stereo_checks_from_config(config["stereo"])
+    for _settings in (BaselineSettings, MatchCheck):
+        settings_of(_settings, config["stereo"])
     for _name in TRAINED:
         stage_settings(JointSettings, "joint", config, overrides=METHOD[_name].settings)
     if config["stereo"]["backend"] == "onnx":
@@ -147,12 +149,16 @@ def stereo_depth_inputs(wildcards):
     return inputs
 
 
+def cli_flags(settings, section):
+    """The flags of a settings dataclass's fields (named as the config keys) from a config section."""
+    return " ".join(f"{cli_flag(f.name)} {section[f.name]}" for f in dataclasses.fields(settings))
+
+
 def stereo_depth_args(wildcards, input):
     if wildcards.backend == "oracle":
         return f"--gt-mesh {gt_mesh(wildcards)}"
     s = config["stereo"]
-    check = "".join(f" --{key.replace('_', '-')} {s[key]}" for key in
-                    ("ncc_threshold", "ncc_window", "range_margin", "mv_ncc_threshold", "mv_views", "mv_neighbours"))
+    check = " " + cli_flags(MatchCheck, s)
     if wildcards.backend == "onnx":
         return f"--stereo {input.stereo} --onnx {shlex.quote(json.dumps(s['onnx']))}" + check
     return (f"--stereo {input.stereo}{check} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"

@@ -9,8 +9,7 @@ rule stereo_render:
     output:
         directory(f"{RESULTS}/{{scene}}/stereo"),
     params:
-        baseline=lambda wc: " ".join(f"--{key.replace('_', '-')} {config['stereo'][key]}"
-                                     for key in ("baseline", "baseline_factor", "target_disparity", "max_baseline")),
+        baseline=lambda wc: cli_flags(BaselineSettings, config["stereo"]),
     log:
         f"{RESULTS}/logs/{{scene}}/stereo_render.log",
     benchmark:
