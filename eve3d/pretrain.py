@@ -6,8 +6,11 @@ refinement); at ``reinit_at`` the Gaussians are replaced by points back-projecte
 rendered depth of every training view (Mini-Splatting's depth re-initialisation: an even,
 surface-bound layout instead of the clumps densification grows); at ``simplify_at`` only
 the Gaussians that carry the most blending weight over the training views are kept
-(Mini-Splatting's importance-based simplification). Writes ``point_cloud.ply`` (standard
-3DGS PLY), ``metrics.json`` (PSNR/SSIM of the held-out views) and PNG previews.
+(Mini-Splatting's importance-based simplification). The photos are fitted through one
+contrast-limited equalisation curve of the whole scene (``equalize``), so that the right
+views it renders carry the faint texture a matcher needs. Writes ``point_cloud.ply``
+(standard 3DGS PLY), ``tone_curve.json`` (that curve), ``metrics.json`` (PSNR/SSIM of the
+held-out views, against the equalised photos) and PNG previews.
 """
 from __future__ import annotations
 
@@ -23,7 +26,8 @@ from eve3d.densify import remove
 from eve3d.fileio import atomic_path
 from eve3d.gaussians import GaussianModel
 from eve3d.render import render
-from eve3d.scene import Scene
+from eve3d.scene import Eve3dError, Scene
+from eve3d.stereo import TONE_FILE, scene_tone_curve
 from eve3d.training import Trainer, TrainSettings, initial_points
 
 
@@ -40,6 +44,18 @@ class PretrainSettings(TrainSettings):
     """Fraction of Gaussians (highest blending weight first) a simplification keeps."""
     init_random_points: int = 100_000
     """Random initial points when the scene has no sparse points."""
+    equalize: float = 3.0
+    """The photos are fitted through one tone curve of the whole scene: contrast-limited
+    histogram equalisation of every photo's grey levels, the histogram clipped at this × its
+    mean bin count (``eve3d.stereo.scene_tone_curve``); 0 = the photos as they are. Faint
+    texture (a dark, low-contrast wall) then weighs in the loss as much as bright texture, so
+    the model fits it, and its geometry there. The curve is written beside the PLY
+    (``tone_curve.json``) and the stereo stage matches the photos through it."""
+
+    def __post_init__(self) -> None:
+        if self.equalize != 0 and self.equalize < 1:
+            raise Eve3dError(f"pretrain.equalize: must be 0 (off) or at least 1 (the histogram's clip limit), "
+                             f"got {self.equalize}")
 
 
 @torch.no_grad()
@@ -80,9 +96,12 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     """Run the stage; returns the held-out metrics (also written to ``metrics.json``)."""
     s = settings
     out_dir = Path(out_dir)
-    trainer = Trainer(scene, s, out_dir, "pretrain")
+    tone = scene_tone_curve(scene, s.equalize)
+    trainer = Trainer(scene, s, out_dir, "pretrain", tone)
     rng = np.random.default_rng(s.seed)
     points, colors = initial_points(scene, s.init_random_points, rng)
+    if colors is not None and scene.point_colors is not None:
+        colors = tone[scene.point_colors.astype(np.uint8)] / 255.0
     trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree))
 
     def events(step: int) -> None:
@@ -103,6 +122,8 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
 
     trainer.run(trainer.photometric_terms, events)
     trainer.model.save_ply(out_dir / "point_cloud.ply")
+    with atomic_path(out_dir / TONE_FILE) as tmp:
+        tmp.write_text(json.dumps(tone.tolist()))
     metrics = {"held_out": trainer.evaluate(trainer.test_ids), "train": trainer.evaluate(trainer.train_ids),
                "gaussians": len(trainer.model), "iterations": s.iterations, "resolution": s.resolution,
                "settings": asdict(s)}

@@ -8,7 +8,7 @@ further left in the right image (x_right = x_left − d) and Z = fx·B/d.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, fields, replace
 from functools import lru_cache
 from pathlib import Path
@@ -105,6 +105,31 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
     return np.maximum(disp, 0).astype(np.float32), np.where(textured & (disp > 0), confidence, 0).astype(np.float32)
 
 
+def equalizing_curve(images: Iterable[np.ndarray], clip: float) -> np.ndarray:
+    """(256,) uint8 tone curve: contrast-limited histogram equalisation of the grey levels of
+    ``images`` (uint8) together. The histogram is clipped at ``clip`` × its mean bin count and
+    the excess spread over every level, so the curve's slope stays near ``clip`` or below;
+    level 0 stays 0 (a black background stays black)."""
+    hist = sum(np.bincount(im.ravel(), minlength=256) for im in images).astype(np.float64)
+    cap = clip * hist.mean()
+    for _ in range(8):  # spreading the excess can lift bins over the cap again; a few rounds settle it
+        excess = np.maximum(hist - cap, 0).sum()
+        hist = np.minimum(hist, cap) + excess / 256
+    cdf = np.cumsum(hist)
+    cdf = (cdf - cdf[0]) / max(cdf[-1] - cdf[0], 1e-12)
+    return np.round(255 * cdf).astype(np.uint8)
+
+
+def scene_tone_curve(scene: Scene, clip: float) -> np.ndarray:
+    """The pretrain's tone curve: ``equalizing_curve`` over every photo of ``scene``, one curve
+    for the whole scene so that a surface keeps its grey levels from view to view; the
+    identity when ``clip`` is 0."""
+    if clip <= 0:
+        return np.arange(256, dtype=np.uint8)
+    return equalizing_curve((read_image(c.image_path) for c in tqdm(scene.cameras, desc="tone curve", unit="img",
+                                                                    leave=False)), clip)
+
+
 def local_std(image: np.ndarray, size: int) -> np.ndarray:
     """Grey-level standard deviation over a ``size``×``size`` window (0–255 scale)."""
     import cv2
@@ -115,6 +140,8 @@ def local_std(image: np.ndarray, size: int) -> np.ndarray:
 
 
 PAIRS_FILE = "pairs.json"
+TONE_FILE = "tone_curve.json"
+"""Written by the pretrain beside its PLY: the (256,) curve its photos were fitted through."""
 BASELINE_MODES = ("disparity", "radius")
 
 
@@ -176,7 +203,10 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
         return render(p["means"], p["quats"], model.scales, model.opacities, model.colors(centre), cam,
                       backend=backend, antialiased=True)
 
-    info = {"baseline": asdict(baseline), "model": str(model_path), "views": {}}
+    # the right views come out in the model's grey levels: the photos are matched through the same curve
+    tone_path = Path(model_path).with_name(TONE_FILE)
+    tone = json.loads(tone_path.read_text()) if tone_path.exists() else list(range(256))
+    info = {"baseline": asdict(baseline), "model": str(model_path), "tone_curve": tone, "views": {}}
     with atomic_dir(out_dir) as tmp, torch.no_grad():
         for cam in tqdm(scene.cameras, desc="rendering right views", unit="view"):
             out = draw(cam)
@@ -316,7 +346,11 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
     check = check or MatchCheck()
     neighbours = select_neighbours(scene, check.mv_neighbours)
     # neighbours are mostly the views around: a few decoded photos serve several views
-    photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: read_image(scene.cameras[j].image_path))
+    tone = np.asarray(pairs.get("tone_curve", range(256)))  # the pretrain's, which the right views have
+    if tone.shape != (256,):
+        raise Eve3dError(f"{pairs_path}: tone_curve must list 256 grey levels, got shape {tone.shape}")
+    tone = tone.astype(np.uint8)
+    photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: tone[read_image(scene.cameras[j].image_path)])
     with atomic_dir(out_dir) as tmp:
         for i, (cam, near) in enumerate(zip(tqdm(scene.cameras, desc=name, unit="view"), neighbours)):
             pair = pairs.get("views", {}).get(cam.view_id)

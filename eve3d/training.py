@@ -125,8 +125,9 @@ class View:
     """(H, W, 3) float in [0, 1]."""
 
 
-def load_views(scene: Scene, resolution: float, device: torch.device) -> list[View]:
-    """Every camera of ``scene`` with its image resized (area filter) to the training size."""
+def load_views(scene: Scene, resolution: float, device: torch.device, tone: np.ndarray | None = None) -> list[View]:
+    """Every camera of ``scene`` with its image resized (area filter) to the training size,
+    its grey levels first mapped through ``tone`` ((256,) uint8) when given."""
     import cv2
 
     views = []
@@ -138,6 +139,8 @@ def load_views(scene: Scene, resolution: float, device: torch.device) -> list[Vi
         if rgb.shape[:2] != (cam.height, cam.width):
             raise Eve3dError(f"{cam.image_path}: image is {rgb.shape[1]}×{rgb.shape[0]}, camera says "
                              f"{cam.width}×{cam.height}")
+        if tone is not None:
+            rgb = tone[rgb]
         if (small.width, small.height) != (cam.width, cam.height):
             rgb = cv2.resize(rgb, (small.width, small.height), interpolation=cv2.INTER_AREA)
         image = torch.from_numpy(rgb).to(device=device, dtype=torch.float32) / 255.0
@@ -170,11 +173,12 @@ class NonFiniteLoss(Eve3dError):
 class Trainer:
     """Optimises a :class:`GaussianModel` on a scene's views; see the module docstring."""
 
-    def __init__(self, scene: Scene, settings: TrainSettings, work_dir: Path, name: str):
+    def __init__(self, scene: Scene, settings: TrainSettings, work_dir: Path, name: str,
+                 tone: np.ndarray | None = None):
         self.scene, self.s, self.work_dir, self.name = scene, settings, Path(work_dir), name
         want_cuda = settings.device == "cuda" or (settings.device == "auto" and torch.cuda.is_available())
         self.device = torch.device("cuda" if want_cuda else "cpu")
-        self.views = load_views(scene, settings.resolution, self.device)
+        self.views = load_views(scene, settings.resolution, self.device, tone)
         self.train_ids, self.test_ids = split_views(len(self.views), settings.holdout)
         if not self.train_ids:
             raise Eve3dError(f"{scene.root}: no training views left after holding out every {settings.holdout}th")

@@ -7,8 +7,8 @@ import pytest
 from eve3d.bench import stereo_motorcycle
 from eve3d.maps import load_maps
 from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.stereo import (PAIRS_FILE, BaselineSettings, SgbmSettings, checked_confidence, local_std,
-                          render_right_views, right_camera, sgbm_disparity, sgbm_priors)
+from eve3d.stereo import (PAIRS_FILE, BaselineSettings, SgbmSettings, checked_confidence, equalizing_curve,
+                          local_std, render_right_views, right_camera, sgbm_disparity, sgbm_priors)
 
 
 def test_right_camera_gives_disparity_fx_b_over_z():
@@ -47,6 +47,65 @@ def test_sgbm_recovers_a_constant_disparity_and_rejects_flat_regions():
     core = confidence[:, 40:80] >= 0.5
     assert core.mean() > 0.9 and np.allclose(disp[:, 40:80][core], 8, atol=0.1)
     assert not confidence[:, 100:].any()
+
+
+def dim(image: np.ndarray) -> np.ndarray:
+    """A dark, low-contrast copy: 0–255 squeezed into 20–25 (a dim wall's texture)."""
+    return (20 + image.astype(np.float32) * 5 / 255).round().astype(np.uint8)
+
+
+def test_an_equalizing_curve_lets_sgbm_match_a_dim_faint_texture():
+    """A dim pair beside a bright one: plain SGBM is confident on little of the dim part;
+    through one equalisation curve for both images it is confident almost everywhere there,
+    at the true disparity, and the black band stays unconfident. The curve keeps 0 at 0,
+    never decreases, and stretches a grey level by about ``clip`` at most."""
+    left, right = shifted_pair(8)
+    left[:, :72], right[:, :72] = dim(left[:, :72]), dim(right[:, :72])
+    left[:, 100:] = right[:, 100:] = 0
+    plain = sgbm_disparity(left, right, 32)[1][:, 36:68] >= 0.5  # SGBM leaves the first 32 columns empty
+    curve = equalizing_curve((left, right), 5)
+    disp, confidence = sgbm_disparity(curve[left], curve[right], 32)
+    core = confidence[:, 36:68] >= 0.5
+    print(f"dim part confident: plain {plain.mean():.3f}, equalised {core.mean():.3f}")
+    assert plain.mean() < 0.5 and core.mean() > 0.9
+    assert np.mean(np.abs(disp[:, 36:68][core] - 8) <= 0.5) > 0.98
+    assert not confidence[:, 108:].any()
+    steps = np.diff(curve.astype(int))
+    assert curve[0] == 0 and curve[-1] == 255 and (steps >= 0).all() and steps.max() <= 6
+
+
+def test_sgbm_priors_match_the_photo_through_the_pretrains_tone_curve(tmp_path):
+    """A dim photo whose right view comes from a model fitted to the equalised photos: with
+    the pretrain's curve in pairs.json the photo is matched through it (right depth, confident
+    over most of the view); without it, the photo's faint texture meets the right view's
+    stretched one and far fewer pixels are confident (0.23 against 0.58)."""
+    import cv2
+
+    scene, write_pairs = stereo_scene(tmp_path, 10)
+    left, right = shifted_pair(10)
+    curve = equalizing_curve((dim(left),), 5)
+    cv2.imwrite(str(tmp_path / "v.png"), dim(left)[..., ::-1])
+    cv2.imwrite(str(tmp_path / "stereo/right/v.png"), curve[dim(right)][..., ::-1])
+    write_pairs()
+    sgbm_priors(scene, tmp_path / "stereo", tmp_path / "plain", preview=False)
+    pairs = json.loads((tmp_path / "stereo" / PAIRS_FILE).read_text())
+    (tmp_path / "stereo" / PAIRS_FILE).write_text(json.dumps({**pairs, "tone_curve": curve.tolist()}))
+    sgbm_priors(scene, tmp_path / "stereo", tmp_path / "toned", preview=False)
+    plain, toned = load_maps(tmp_path / "plain/v.npz"), load_maps(tmp_path / "toned/v.npz")
+    sure = toned["confidence"] > 0.5
+    print(f"confident: without the curve {(plain['confidence'] > 0.5).mean():.3f}, with it {sure.mean():.3f}")
+    assert sure.mean() > 0.5 and (plain["confidence"] > 0.5).mean() < sure.mean() - 0.25
+    np.testing.assert_allclose(np.median(toned["depth"][sure]), 100 * 0.5 / 10, rtol=1e-3)
+    (tmp_path / "stereo" / PAIRS_FILE).write_text(json.dumps({**pairs, "tone_curve": [0, 1]}))
+    with pytest.raises(Eve3dError, match="tone_curve must list 256"):
+        sgbm_priors(scene, tmp_path / "stereo", tmp_path / "bad", preview=False)
+
+
+def test_pretrain_equalize_out_of_range_is_named():
+    from eve3d.pretrain import PretrainSettings
+
+    with pytest.raises(Eve3dError, match="pretrain.equalize"):
+        PretrainSettings(equalize=0.5)
 
 
 def test_wls_fills_the_disparity_and_keeps_it():

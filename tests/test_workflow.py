@@ -97,6 +97,8 @@ def test_tiny_training_run(tmp_path):
     assert views[0]["stage"] == "pretrain" and int(views[0]["views"]) == 2
     assert float(views[0]["psnr"]) > 15
     assert (results / "tiny/stereo/right/000.png").exists() and (results / "tiny/priors/sgbm/000.npz").exists()
+    tone = json.loads((results / "tiny/pretrain/tone_curve.json").read_text())  # the photos are matched through it
+    assert len(tone) == 256 and json.loads((results / "tiny/stereo/pairs.json").read_text())["tone_curve"] == tone
     for method in ("3dgs", "pgsr", "eve3d"):
         assert (results / f"tiny/{method}/depth/000.npz").exists()
         assert (results / f"tiny/{method}/previews/000.depth.png").exists()

@@ -11,7 +11,7 @@ from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_valu
 from eve3d.evaluate import cli_flag
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
-from eve3d.stereo import BaselineSettings, MatchCheck, settings_of
+from eve3d.stereo import TONE_FILE, BaselineSettings, MatchCheck, settings_of
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")

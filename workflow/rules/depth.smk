@@ -6,6 +6,7 @@ rule stereo_render:
     input:
         scene=posed_dataset,
         model=f"{RESULTS}/{{scene}}/pretrain/point_cloud.ply",
+        tone=f"{RESULTS}/{{scene}}/pretrain/{TONE_FILE}",  # read beside the model; the photos are matched through it
     output:
         directory(f"{RESULTS}/{{scene}}/stereo"),
     params:

@@ -8,6 +8,7 @@ rule pretrain:
     output:
         model=f"{RESULTS}/{{scene}}/pretrain/point_cloud.ply",
         metrics=f"{RESULTS}/{{scene}}/pretrain/metrics.json",
+        tone=f"{RESULTS}/{{scene}}/pretrain/{TONE_FILE}",
     params:
         config=lambda wc: training_config("pretrain"),
     log:
