@@ -100,8 +100,8 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     trainer = Trainer(scene, s, out_dir, "pretrain", tone)
     rng = np.random.default_rng(s.seed)
     points, colors = initial_points(scene, s.init_random_points, rng)
-    if colors is not None and scene.point_colors is not None:
-        colors = tone[scene.point_colors.astype(np.uint8)] / 255.0
+    if colors is not None:  # the sparse points' photo colours, into the curve's grey levels
+        colors = tone[np.round(colors * 255).astype(np.uint8)] / 255.0
     trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree))
 
     def events(step: int) -> None:

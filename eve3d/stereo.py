@@ -345,11 +345,11 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
     pairs = json.loads(pairs_path.read_text())
     check = check or MatchCheck()
     neighbours = select_neighbours(scene, check.mv_neighbours)
-    # neighbours are mostly the views around: a few decoded photos serve several views
     tone = np.asarray(pairs.get("tone_curve", range(256)))  # the pretrain's, which the right views have
     if tone.shape != (256,):
         raise Eve3dError(f"{pairs_path}: tone_curve must list 256 grey levels, got shape {tone.shape}")
     tone = tone.astype(np.uint8)
+    # neighbours are mostly the views around: a few decoded photos serve several views
     photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: tone[read_image(scene.cameras[j].image_path)])
     with atomic_dir(out_dir) as tmp:
         for i, (cam, near) in enumerate(zip(tqdm(scene.cameras, desc=name, unit="view"), neighbours)):
