@@ -172,25 +172,12 @@ def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0, wls: bool 
 
 
 def prior_accuracy(priors_dir, reference_dir, scene: str = "") -> dict:
-    """Median relative depth error, density (confident pixels / pixels with reference depth)
-    and the fractions of confident pixels off by more than 5 % and 10 % ("confident and
-    wrong") of one folder of priors against exact depth (the oracle's folder)."""
+    """:func:`eve3d.evaluate.depth.depth_accuracy` of one folder of priors, named by its backend."""
     from pathlib import Path
 
-    from eve3d.maps import load_maps
+    from eve3d.evaluate.depth import depth_accuracy
 
-    errors, confident, known = [], 0, 0
-    for ref_path in sorted(Path(reference_dir).glob("*.npz")):
-        ref, prior = load_maps(ref_path), load_maps(Path(priors_dir) / ref_path.name)
-        has = ref["confidence"] > 0
-        use = has & (prior["confidence"] >= 0.5) & (prior["depth"] > 0)
-        errors.append(np.abs(prior["depth"][use] - ref["depth"][use]) / ref["depth"][use])
-        confident, known = confident + int(use.sum()), known + int(has.sum())
-    err = np.concatenate(errors) if errors else np.zeros(0)
-    share = lambda x: float((err > x).mean()) if len(err) else float("nan")  # noqa: E731
-    return {"data": scene or str(priors_dir), "backend": Path(priors_dir).name,
-            "median_rel_error": float(np.median(err)) if len(err) else float("nan"),
-            "density": confident / max(known, 1), "wrong_5": share(0.05), "wrong_10": share(0.10)}
+    return {**depth_accuracy(priors_dir, reference_dir, scene), "backend": Path(priors_dir).name}
 
 
 def format_stereo_tables(moto: list[dict], priors: list[dict]) -> str:
@@ -207,9 +194,10 @@ def format_stereo_tables(moto: list[dict], priors: list[dict]) -> str:
 def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
     """A table of :func:`prior_accuracy` rows, one label each."""
     width = max(len(title), *map(len, labels))
-    lines = [f"{title:<{width}} {'median rel. error':>17} {'density':>8} {'off >5 %':>9} {'off >10 %':>9}"]
-    lines += [f"{label:<{width}} {r['median_rel_error'] * 100:15.2f} % {r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % "
-              f"{r['wrong_10'] * 100:7.1f} %" for label, r in zip(labels, rows)]
+    lines = [f"{title:<{width}} {'median signed':>13} {'median rel. error':>17} {'density':>8} {'off >5 %':>9} "
+             f"{'off >10 %':>9}"]
+    lines += [f"{label:<{width}} {r['median_signed_error'] * 100:+11.2f} % {r['median_rel_error'] * 100:15.2f} % "
+              f"{r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % {r['wrong_10'] * 100:7.1f} %" for label, r in zip(labels, rows)]
     return lines
 
 
@@ -307,8 +295,9 @@ def methods_report(config: dict) -> dict:
     """The table of ``eve3d bench methods`` from a finished workflow run of ``config``
     (resolved): per scene and method the synthetic protocol's scores and the wall time of
     the method's own stages (joint + mesh; the stages the priors share are listed per
-    scene), the means over scenes, and per scene the priors' accuracy against the oracle
-    depth: D* (``priors/{backend}``) and every learnable method's final D̂."""
+    scene), the means over scenes, and per scene the depth maps' accuracy against the oracle
+    depth: D* (``priors/{backend}``), every learnable method's final D̂ and every trained
+    method's rendered depth D (the maps its mesh fuses)."""
     from pathlib import Path
 
     from eve3d.methods import methods
@@ -336,9 +325,10 @@ def methods_report(config: dict) -> dict:
             if star.is_dir():
                 priors.append({**prior_accuracy(star, oracle, scene), "priors": f"D* ({backend})"})
             for name in sc.get("methods", config["methods"]):
-                learned = results / scene / name / "priors"
-                if learned.is_dir():
-                    priors.append({**prior_accuracy(learned, oracle, scene), "priors": f"D̂ of {name}"})
+                for folder, what in (("priors", "D̂"), ("depth", "D")):
+                    maps = results / scene / name / folder
+                    if maps.is_dir():
+                        priors.append({**prior_accuracy(maps, oracle, scene), "priors": f"{what} of {name}"})
     means = []
     for name in dict.fromkeys(r["method"] for r in rows):
         mine = [r for r in rows if r["method"] == name]
@@ -360,7 +350,8 @@ def format_methods_report(report: dict) -> str:
     for scene, stages in report["shared_seconds"].items():
         lines.append(f"  {scene}: " + ", ".join(f"{k} {cell(v, '.0f')} s" for k, v in stages.items()))
     if report["priors"]:
-        lines += ["", "priors against the exact depth, on their confident pixels"]
+        lines += ["", "depth against the exact depth, on confident pixels (priors: M^c; rendered D: alpha ≥ 0.5);",
+                  "signed: positive = too far"]
         lines += prior_lines("scene / priors", [f"{r['data']} / {r['priors']}" for r in report["priors"]],
                              report["priors"])
     return "\n".join(lines)

@@ -55,8 +55,9 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     elif a.backend == "sgbm":
         from eve3d.stereo import SgbmSettings, sgbm_priors
 
-        settings = SgbmSettings(block_size=a.block_size, uniqueness=a.uniqueness, lr_threshold=a.lr_threshold,
-                                min_texture=a.min_texture, wls=a.wls, wls_lambda=a.wls_lambda, wls_sigma=a.wls_sigma)
+        settings = SgbmSettings(sgm_mode=a.sgm_mode, block_size=a.block_size, uniqueness=a.uniqueness,
+                                lr_threshold=a.lr_threshold, min_texture=a.min_texture, wls=a.wls,
+                                wls_lambda=a.wls_lambda, wls_sigma=a.wls_sigma)
         sgbm_priors(scene, Path(a.stereo), Path(a.out), settings, preview=not a.no_preview, check=check)
     else:
         from eve3d.config import load_mapping
@@ -142,6 +143,15 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
                         plane=optional(a.plane), settings=settings)
     metrics = protocol.run(inputs)
+    if bool(a.depth) != bool(a.exact_depth):
+        raise Eve3dError("--depth and --exact-depth go together: the maps the mesh fused, and the exact depth of "
+                         "the same views")
+    if a.depth:
+        from eve3d.evaluate.depth import depth_accuracy
+
+        acc = depth_accuracy(Path(a.depth), Path(a.exact_depth))
+        metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
+                        "depth_density": acc["density"], "depth_maps": str(a.depth)})
     if "tau" in metrics:
         print(f"tau = {metrics['tau']:.5g} ({metrics['tau_rule']})")
     metrics.update({"scene": a.scene_name, "method": a.method} if a.scene_name else {})
@@ -151,7 +161,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
 
 
 SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "accuracy", "completeness", "chamfer",
-                   "precision", "recall", "fscore", "psnr", "ssim")
+                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "psnr", "ssim")
 
 
 def _cmd_bench(a: argparse.Namespace) -> None:
@@ -259,7 +269,7 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from eve3d.stereo import BASELINE_MODES, BaselineSettings, MatchCheck, SgbmSettings
+    from eve3d.stereo import BASELINE_MODES, SGM_MODES, BaselineSettings, MatchCheck, SgbmSettings
     from eve3d.synth import KINDS
 
     p = argparse.ArgumentParser(prog="eve3d", description=__doc__)
@@ -316,6 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--gt-mesh", help="mesh for the oracle (default: the scene's own GT mesh)")
     s.add_argument("--stereo", help="sgbm: the output folder of `eve3d stereo-render`")
     sgbm = SgbmSettings()
+    s.add_argument("--sgm-mode", choices=list(SGM_MODES), default=sgbm.sgm_mode,
+                   help="sgbm: cost aggregation: hh = 8 directions in two passes (unbiased on slanted surfaces); "
+                        "hh4 = 4; 3way and sgbm = single pass (faster, less memory, biased on slopes)")
     s.add_argument("--block-size", type=int, default=sgbm.block_size)
     s.add_argument("--uniqueness", type=int, default=sgbm.uniqueness)
     s.add_argument("--lr-threshold", type=float, default=sgbm.lr_threshold, help="left–right check tolerance in pixels")
@@ -390,6 +403,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--plane", help="dtu: Plane{scan}.mat")
     s.add_argument("--dtu-density", type=float, default=defaults.dtu_density)
     s.add_argument("--dtu-max-dist", type=float, default=defaults.dtu_max_dist)
+    s.add_argument("--depth", help="the depth maps the mesh was fused from: their median signed and absolute "
+                                   "relative error against --exact-depth are added to the metrics")
+    s.add_argument("--exact-depth", help="exact depth maps of the same views (results/SCENE/priors/oracle)")
     s.add_argument("--scene-name")
     s.add_argument("--method")
     s.set_defaults(func=_cmd_evaluate)

@@ -23,6 +23,30 @@ SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633
          1.445305721320277, -0.5900435899266435)
 
 
+SURFACE_NEIGHBOURS = 8
+"""Points around each initial point whose spread tells whether they lie on a surface."""
+PLANAR_RATIO = 0.1
+"""A neighbourhood is planar when its smallest principal variance is at most this share of
+the middle one (surface samples: about 0; points drawn in a volume: about 0.5)."""
+
+
+def surface_frames(points: np.ndarray, tree=None) -> tuple[np.ndarray, np.ndarray]:
+    """For each point, whether its ``SURFACE_NEIGHBOURS`` nearest points lie on a surface
+    (bool (N,)), and quaternions (w, x, y, z) (N, 4) of a frame whose third axis is the
+    normal of their best-fitting plane (the principal direction of least variance)."""
+    from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
+
+    tree = tree or cKDTree(points)
+    _, idx = tree.query(points, k=SURFACE_NEIGHBOURS + 1)
+    around = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    variances, axes = np.linalg.eigh(np.einsum("nki,nkj->nij", around, around))  # ascending
+    frames = axes[:, :, ::-1].copy()  # largest, middle, smallest (the normal) as columns
+    frames[np.linalg.det(frames) < 0, :, 0] *= -1
+    planar = variances[:, 0] <= PLANAR_RATIO * variances[:, 1]
+    return planar, Rotation.from_matrix(frames).as_quat()[:, [3, 0, 1, 2]]
+
+
 def sh_coefficients(degree: int) -> int:
     """Coefficients per colour channel for SH up to ``degree``."""
     return (degree + 1) ** 2
@@ -85,23 +109,33 @@ class GaussianModel:
 
     @classmethod
     def from_points(cls, points: np.ndarray, colors: np.ndarray | None, sh_degree: int = 3,
-                    opacity: float = 0.1) -> "GaussianModel":
-        """3DGS initialisation: isotropic scales = √(mean squared distance to the 3 nearest
-        neighbours), identity rotations, the given opacity, colours as the SH DC term."""
+                    opacity: float = 0.1, thickness: float = 1.0) -> "GaussianModel":
+        """3DGS initialisation: scales = √(mean squared distance to the 3 nearest neighbours),
+        the given opacity, colours as the SH DC term. ``thickness`` 1: 3DGS's isotropic balls
+        with identity rotations. Below 1: where the points around one lie on a surface
+        (:func:`surface_frames`), a disc in that surface's plane whose thin axis, along its
+        normal, is ``thickness`` × the others; elsewhere still a ball."""
         from scipy.spatial import cKDTree
 
         points = np.asarray(points, dtype=np.float64)
         if len(points) < 4:
             raise Eve3dError(f"need at least 4 points to initialise Gaussians, got {len(points)}")
-        dist, _ = cKDTree(points).query(points, k=4)
+        tree = cKDTree(points)
+        dist, _ = tree.query(points, k=4)
         scale = np.sqrt(np.maximum((dist[:, 1:] ** 2).mean(axis=1), 1e-14))
         n = len(points)
+        quats = np.tile([1.0, 0, 0, 0], (n, 1))
+        log_scales = np.log(np.repeat(scale[:, None], 3, axis=1))
+        if thickness < 1 and n > SURFACE_NEIGHBOURS:
+            planar, frame_quats = surface_frames(points, tree)
+            quats[planar] = frame_quats[planar]
+            log_scales[planar, 2] += math.log(thickness)
         rgb = np.full((n, 3), 0.5) if colors is None else np.asarray(colors, dtype=np.float64)
         f32 = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
         params = {
             "means": f32(points),
-            "quats": f32(np.tile([1.0, 0, 0, 0], (n, 1))),
-            "log_scales": f32(np.log(np.repeat(scale[:, None], 3, axis=1))),
+            "quats": f32(quats),
+            "log_scales": f32(log_scales),
             "logit_opacities": f32(np.full(n, math.log(opacity / (1 - opacity)))),
             "sh0": rgb_to_sh(f32(rgb))[:, None, :],
             "shN": torch.zeros(n, sh_coefficients(sh_degree) - 1, 3),

@@ -93,6 +93,7 @@ class JointSettings(TrainSettings):
     """M^c update: confident where the prior passes the geometric check in this many neighbours."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         for key, allowed in CHOICES.items():
             if getattr(self, key) not in allowed:
                 raise Eve3dError(f"joint.{key}: {getattr(self, key)!r} is not one of {', '.join(allowed)}")
@@ -299,7 +300,7 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
         trainer.input_digest = loaded.digest
     if s.init != "priors":
         points, colors = initial_points(scene, s.init_random_points, rng)
-    trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree))
+    trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
     if s.exposure:
         trainer.add_extra("exposure", torch.eye(3, 4).repeat(len(trainer.views), 1, 1), s.exposure_lr)
     return JointRun(trainer, loss_terms(trainer, s, select_neighbours(scene, s.neighbours), prior), prior)

@@ -53,6 +53,7 @@ class PretrainSettings(TrainSettings):
     (``tone_curve.json``) and the stereo stage matches the photos through it."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.equalize != 0 and self.equalize < 1:
             raise Eve3dError(f"pretrain.equalize: must be 0 (off) or at least 1 (the histogram's clip limit), "
                              f"got {self.equalize}")
@@ -102,13 +103,13 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     points, colors = initial_points(scene, s.init_random_points, rng)
     if colors is not None:  # the sparse points' photo colours, into the curve's grey levels
         colors = tone[np.round(colors * 255).astype(np.uint8)] / 255.0
-    trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree))
+    trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
 
     def events(step: int) -> None:
         if step in s.reinit_at:
             count = s.reinit_points or len(trainer.model)
             pts, cols = depth_points(trainer, count)
-            trainer.set_model(GaussianModel.from_points(pts, cols, s.sh_degree))
+            trainer.set_model(GaussianModel.from_points(pts, cols, s.sh_degree, thickness=s.init_thickness))
             print(f"\npretrain: step {step}: re-initialised {len(pts)} Gaussians from rendered depth", file=sys.stderr)
         if step in s.simplify_at:
             weight = blend_weights(trainer)

@@ -27,10 +27,24 @@ def right_camera(cam: Camera, baseline: float) -> Camera:
     return replace(cam, t=cam.t - np.array([baseline, 0.0, 0.0]), image_path=None, mask_path=None)
 
 
+SGM_MODES = {"hh": "STEREO_SGBM_MODE_HH", "hh4": "STEREO_SGBM_MODE_HH4", "3way": "STEREO_SGBM_MODE_SGBM_3WAY",
+             "sgbm": "STEREO_SGBM_MODE_SGBM"}
+"""``stereo.sgm_mode`` → OpenCV's StereoSGBM mode: 8 directions in two passes (``hh``), 4
+(``hh4``), or the single-pass variants (``3way``, ``sgbm``)."""
+
+
 @dataclass
 class SgbmSettings:
-    """OpenCV StereoSGBM (MODE_SGBM_3WAY; P1 = 8·3·b², P2 = 32·3·b², DESIGN §6)."""
+    """OpenCV StereoSGBM (P1 = 8·3·b², P2 = 32·3·b², DESIGN §6)."""
 
+    sgm_mode: str = "hh"
+    """Cost aggregation (``SGM_MODES``). ``hh`` aggregates along 8 directions in two
+    passes; the single-pass modes (``3way``, ``sgbm``) only along the directions a pass from
+    the top can see, none from below, and on a surface slanted from top to bottom they
+    carry one end's disparity into the other: on exact right views of the object scene the
+    depth comes out 0.19 % (``3way``) and 0.61 % (``sgbm``) too far, −0.04 % with ``hh``.
+    ``hh`` keeps a cost per pixel and disparity (W·H·D·2 bytes: 1 GB at 1080×1920 with 256
+    disparities)."""
     block_size: int = 5
     max_disparity: float | None = None
     """Largest disparity searched (rounded up to a multiple of 16); None = from the depth range."""
@@ -49,6 +63,10 @@ class SgbmSettings:
     wls_lambda: float = 8000.0
     wls_sigma: float = 1.5
 
+    def __post_init__(self) -> None:
+        if self.sgm_mode not in SGM_MODES:
+            raise Eve3dError(f"stereo.sgm_mode: {self.sgm_mode!r} is not one of {', '.join(SGM_MODES)}")
+
 
 def _matcher(min_disparity: int, num_disparities: int, s: SgbmSettings):
     import cv2
@@ -57,7 +75,7 @@ def _matcher(min_disparity: int, num_disparities: int, s: SgbmSettings):
     return cv2.StereoSGBM_create(minDisparity=min_disparity, numDisparities=num_disparities, blockSize=b, P1=8 * 3 * b * b,
                                  P2=32 * 3 * b * b, disp12MaxDiff=-1, uniquenessRatio=s.uniqueness,
                                  speckleWindowSize=s.speckle_window, speckleRange=s.speckle_range,
-                                 mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+                                 mode=getattr(cv2, SGM_MODES[s.sgm_mode]))
 
 
 def mirrored(matcher: Callable[[np.ndarray, np.ndarray], np.ndarray], left: np.ndarray,

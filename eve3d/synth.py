@@ -8,8 +8,10 @@ pattern (``tiles``), beside value-noise textures that SfM can match.
 Kinds (``KINDS``): ``object`` (a DTU-like object on a table, cameras around and above it),
 ``room`` (a Meetingroom-like room, cameras on a loop inside it), ``vase`` (a hollow vase and a
 box on the ground: surfaces no camera sees, inside the vase and under the box) and
-``inside-room`` (the room seen from cameras clustered near its centre, looking outwards) and
-``dark-room`` (the same capture of the room with dark, low-contrast walls and ceiling).
+``inside-room`` (the room seen from cameras clustered near its centre, looking outwards),
+``dark-room`` (the same capture of the room with dark, low-contrast walls and ceiling) and
+``plane`` (one textured plane 2 units in front of the cameras: the simplest geometry, where
+a depth bias has nowhere to hide).
 
 Output, laid out the way a user brings data:
 ``images/*.png``, ``sparse/0/`` (COLMAP model with the exact poses and visible surface points;
@@ -217,6 +219,12 @@ def vase_parts() -> list[Part]:
     ]
 
 
+def plane_parts() -> list[Part]:
+    """One textured plane, z = 0, 8 × 8 units (wider than any camera's view of it)."""
+    return [Part(_quad([(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)]),
+                 Material("noise", (0.85, 0.7, 0.5), (0.2, 0.15, 0.25), scale=6.0))]
+
+
 def _look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World-to-camera (R, t) of an OpenCV camera at ``center`` looking at ``target``."""
     z = target - center
@@ -276,6 +284,20 @@ def inside_cameras(n: int, width: int, height: int, rng: np.random.Generator, ar
     return cams
 
 
+def plane_cameras(n: int, width: int, height: int, rng: np.random.Generator, arc: float = 360.0) -> list[Camera]:
+    """Cameras 2 units above the plane on a circle of radius 0.5, each looking at the plane
+    near the point below the circle's centre, tilted by up to about 15°."""
+    f = 1.1 * width
+    K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
+    cams = []
+    for i in range(n):
+        a = np.radians(arc) * i / n
+        center = np.array([0.5 * np.cos(a), 0.5 * np.sin(a), 2.0 + rng.uniform(-0.1, 0.1)])
+        R, t = _look_at(center, np.array([0.0, 0.0, 0.0]) + rng.normal(0, 0.05, 3) * [1, 1, 0], np.array([0, 1.0, 0]))
+        cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
+    return cams
+
+
 @dataclass(frozen=True)
 class Kind:
     """A synthetic scene: its parts, its camera layout and the scene kind it is read as."""
@@ -292,6 +314,7 @@ KINDS: dict[str, Kind] = {
     "vase": Kind(vase_parts, object_cameras, "object"),
     "inside-room": Kind(room_parts, inside_cameras, "scene"),
     "dark-room": Kind(lambda: room_parts(dark=True), inside_cameras, "scene"),
+    "plane": Kind(plane_parts, plane_cameras, "scene"),
 }
 
 

@@ -66,6 +66,12 @@ class TrainSettings:
     """Opacity compensation for the 0.3 px² screen-space dilation (gsplat's antialiased mode).
     Without it, the dilation widens edge-on and sub-pixel Gaussians and the optimiser shrinks
     every surface by about a pixel footprint to match the photos' silhouettes."""
+    init_thickness: float = 0.1
+    """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
+    are discs in the plane of their 8 nearest points, this thin along its normal (a
+    fraction of the in-plane scale); 1 = 3DGS's isotropic balls. Balls, split in 3D while
+    they are still round, leave a cloud in front of and behind each surface whose front
+    layer is what renders: depth 0.2–0.7 % too near (README, Choices)."""
     device: str = "auto"
     """``auto`` = CUDA when present, else CPU."""
     seed: int = 0
@@ -76,6 +82,10 @@ class TrainSettings:
     """Views whose RGB, depth and normals are written as PNG at the end."""
     lr: LearningRates = field(default_factory=LearningRates)
     densify: Densifier = field(default_factory=Densifier)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.init_thickness <= 1:
+            raise Eve3dError(f"train.init_thickness: must be in (0, 1] (1 = isotropic balls), got {self.init_thickness}")
 
 
 def settings_from_dict(cls, values: dict, where: str = "settings"):

@@ -207,6 +207,23 @@ def test_antialiased_mode_compensates_the_dilation(backend, sigma_px):
     assert float(anti) == pytest.approx(0.8 * v / (v + 0.3), rel=1e-6)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("thin", [1e-5, 1e-7, 1e-9])
+def test_an_edge_on_disc_gives_finite_gradients_in_antialiased_mode(backend, thin):
+    """A disc seen exactly edge-on whose thin axis the flattening loss has taken to ~1e-7 of
+    the others: its compensation is 0 in float32, and its gradients must stay finite (a NaN
+    there reached the parameters and stayed, unseen by the loss)."""
+    cam = camera(32, 24, dtype=torch.float32)
+    means = torch.tensor([[0.0, 0.0, 2.0]], requires_grad=True)
+    quats = torch.tensor([[math.cos(math.pi / 4), 0, math.sin(math.pi / 4), 0]], requires_grad=True)  # normal ⟂ view
+    log_scales = torch.tensor([[math.log(0.1), math.log(0.1), math.log(thin)]], requires_grad=True)
+    opacities, colors = torch.tensor([0.9], requires_grad=True), torch.rand(1, 3, requires_grad=True)
+    out = render(means, quats, log_scales.exp(), opacities, colors, cam, backend=backend, antialiased=True)
+    (out.rgb.sum() + out.depth.sum()).backward()
+    for p in (means, quats, log_scales, opacities, colors):
+        assert torch.isfinite(p.grad).all()
+
+
 @pytest.mark.parametrize("tilt", [0.0, 0.4])
 def test_tilted_flat_gaussian_renders_the_tilted_plane_depth(tilt):
     cam = camera(32, 24, tilt=tilt)

@@ -82,6 +82,9 @@ def test_tiny_training_run(tmp_path):
     assert [(row["scene"], row["method"]) for row in rows] == [
         ("tiny", "3dgs"), ("tiny", "eve3d"), ("tiny", "pgsr"), ("tiny", "stereo-tsdf"), ("tiny-nvs", "3dgs")]
     assert all(0 < float(row["fscore"]) <= 1 for row in rows[:4])
+    # the depth each mesh fused, against the exact depth (a GT mesh gives it); none for nvs
+    assert all(abs(float(row["depth_signed_error"])) < 0.05 and 0 < float(row["depth_error"]) < 0.1 for row in rows[:4])
+    assert rows[4]["depth_signed_error"] == ""
     rows = [row for row in rows if row["method"] != "eve3d"]
     assert (results / "tiny/eve3d/priors/000.npz").exists() and (results / "tiny/eve3d/priors/000.compare.png").exists()
     nvs = json.loads((results / "tiny-nvs/3dgs/metrics.json").read_text())
@@ -113,6 +116,7 @@ def test_tiny_run_then_rerun_one_stage(tmp_path):
     rows = list(csv.DictReader(open(results / "summary.csv")))
     assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "oracle")]
     assert float(rows[0]["fscore"]) > 0.5
+    assert float(rows[0]["depth_signed_error"]) == 0 and float(rows[0]["depth_error"]) == 0  # fused the exact depth
     mesh_time = (results / "tiny/oracle/mesh.ply").stat().st_mtime_ns
     prior_time = (results / "tiny/priors/oracle/000.npz").stat().st_mtime_ns
     # --forcerun reruns one stage and what depends on it, nothing upstream.

@@ -16,6 +16,8 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.999
 T_MIN = 1e-4
 EPS2D = 0.3
+COMPENSATION_FLOOR = 1e-12
+"""Smallest squared opacity compensation (an opacity factor of 1e-6: invisible)."""
 
 
 @dataclass
@@ -126,7 +128,10 @@ def project(means_c: torch.Tensor, rotmats: torch.Tensor, scales: torch.Tensor, 
     det = a * c - b * b
     det_safe = torch.where(det > 0, det, torch.ones_like(det))
     det_raw = (a - EPS2D) * (c - EPS2D) - b * b
-    compensation = torch.sqrt(torch.clamp(det_raw / det_safe, min=0))
+    # Bounded below so that its gradient stays finite: an edge-on disc whose thin axis has
+    # shrunk to ~1e-7 of the others has det_raw = 0 in float32, and √'s slope there is
+    # infinite (0 · ∞ = NaN reached the parameters). gsplat bounds the same slope (+1e-6).
+    compensation = torch.sqrt(torch.clamp(det_raw / det_safe, min=COMPENSATION_FLOOR))
     conics = torch.stack([c / det_safe, -b / det_safe, a / det_safe], dim=-1)
     means2d = torch.stack([cam.fx * x / z_safe + cam.cx, cam.fy * y / z_safe + cam.cy], dim=-1)
 

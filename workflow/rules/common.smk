@@ -161,7 +161,7 @@ def stereo_depth_args(wildcards, input):
     check = " " + cli_flags(MatchCheck, s)
     if wildcards.backend == "onnx":
         return f"--stereo {input.stereo} --onnx {shlex.quote(json.dumps(s['onnx']))}" + check
-    return (f"--stereo {input.stereo}{check} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"
+    return (f"--stereo {input.stereo}{check} --sgm-mode {s['sgm_mode']} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"
             f" --lr-threshold {s['lr_threshold']} --min-texture {s['min_texture']}"
             + (f" --wls --wls-lambda {s['wls_lambda']} --wls-sigma {s['wls_sigma']}" if s["wls"] else ""))
 
@@ -211,15 +211,25 @@ def mesh_args(wildcards):
     return " ".join(args)
 
 
+def scores_depth(scene):
+    """Whether a scene's meshes are scored with the depth maps they were fused from against
+    the exact depth (a GT mesh gives it: the oracle's maps)."""
+    return PROTOCOL[scene].scores == "mesh" and has_gt_mesh(scene_config(scene))
+
+
 def evaluate_inputs(wildcards):
-    """The method's reconstruction (mesh, or trained model for nvs), the posed dataset and
-    the ground-truth files the protocol names (eve3d.evaluate.PROTOCOLS)."""
+    """The method's reconstruction (mesh, or trained model for nvs), the posed dataset, the
+    ground-truth files the protocol names (eve3d.evaluate.PROTOCOLS) and, where the exact
+    depth is known, the depth maps the mesh fused and the exact ones."""
     sc, protocol = scene_config(wildcards.scene), PROTOCOL[wildcards.scene]
     method_dir = f"{RESULTS}/{wildcards.scene}/{wildcards.method}"
     inputs = {"scene": posed_dataset(wildcards),
               "reconstruction": f"{method_dir}/mesh.ply" if protocol.scores == "mesh" else f"{method_dir}/point_cloud.ply"}
     for name, key in protocol.config_inputs.items():
         inputs[name] = gt_input(wildcards) if key == "gt_mesh" else scene_value(sc, key)
+    if scores_depth(wildcards.scene):
+        inputs["depth"] = depth_source(wildcards)
+        inputs["exact_depth"] = f"{RESULTS}/{wildcards.scene}/priors/oracle"
     return inputs
 
 
@@ -237,4 +247,6 @@ def evaluate_args(wildcards, input):
         args.append(f"{cli_flag(name)} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
     args += [f"{cli_flag(key)} {value}" for key, value in evaluate_settings(wildcards.scene).items()
              if value is not None]
+    if scores_depth(wildcards.scene):
+        args.append(f"--depth {input.depth} --exact-depth {input.exact_depth}")
     return " ".join(args)

@@ -1,0 +1,45 @@
+"""Depth maps against the exact depth (a folder of ``oracle`` maps of the same views).
+
+A reconstruction can be off in two ways that a Chamfer distance mixes: noise, and a *bias*
+(a surface consistently too near or too far). With τ at 0.25 % of the scene's diagonal, a
+depth 1 % off in one direction puts a whole surface outside τ whatever its detail, so the
+median *signed* relative error is reported beside the unsigned one.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from eve3d.maps import load_maps
+from eve3d.scene import Eve3dError
+
+
+def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "") -> dict:
+    """Relative depth error (D − D_exact) / D_exact of the maps in ``maps_dir`` on their
+    confident pixels (confidence ≥ 0.5: a prior's M^c, a rendered depth's alpha) where the
+    exact depth is known: its median (signed, positive = too far), the median of its
+    absolute value, the density (those pixels / pixels with exact depth) and the shares
+    off by more than 5 % and 10 % ("confident and wrong")."""
+    maps_dir, exact_dir = Path(maps_dir), Path(exact_dir)
+    references = sorted(exact_dir.glob("*.npz"))
+    if not references:
+        raise Eve3dError(f"{exact_dir}: no exact depth maps (*.npz) to score against")
+    errors, confident, known = [], 0, 0
+    for ref_path in references:
+        path = maps_dir / ref_path.name
+        if not path.exists():
+            raise Eve3dError(f"{path}: missing (the exact depth has this view)")
+        ref, maps = load_maps(ref_path), load_maps(path)
+        if maps["depth"].shape != ref["depth"].shape:
+            raise Eve3dError(f"{path}: depth is {maps['depth'].shape[::-1]}, the exact depth "
+                             f"{ref['depth'].shape[::-1]}: maps of different sizes cannot be compared")
+        has = ref["confidence"] > 0
+        use = has & (maps["confidence"] >= 0.5) & (maps["depth"] > 0)
+        errors.append((maps["depth"][use] - ref["depth"][use]) / ref["depth"][use])
+        confident, known = confident + int(use.sum()), known + int(has.sum())
+    err = np.concatenate(errors).astype(np.float64)
+    stat = lambda f: float(f(err)) if len(err) else float("nan")  # noqa: E731
+    return {"data": label or str(maps_dir), "median_signed_error": stat(np.median),
+            "median_rel_error": stat(lambda e: np.median(np.abs(e))), "density": confident / max(known, 1),
+            "wrong_5": stat(lambda e: (np.abs(e) > 0.05).mean()), "wrong_10": stat(lambda e: (np.abs(e) > 0.10).mean())}

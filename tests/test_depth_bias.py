@@ -1,0 +1,152 @@
+"""Depth without bias (issue 19): the signed error as a figure, and the stages that gave one."""
+import numpy as np
+import pytest
+
+from eve3d.evaluate.depth import depth_accuracy
+from eve3d.maps import save_maps
+from eve3d.raycast import MeshRaycaster
+from eve3d.scene import Camera, Eve3dError
+from eve3d.stereo import SgbmSettings, margin_camera, right_camera, sgbm_disparity
+from eve3d.synth import KINDS, shade
+
+W, H = 320, 240
+SUPERSAMPLE = np.stack(np.meshgrid([0.25, 0.75], [0.25, 0.75]), -1).reshape(-1, 2)
+
+
+def test_depth_accuracy_signs_the_error(tmp_path):
+    """Too far is positive; the median ignores a minority of gross errors; unconfident pixels
+    and pixels without exact depth are left out."""
+    exact = np.full((20, 30), 2.0, np.float32)
+    exact[:, :3] = 0  # no exact depth there (a miss)
+    depth = exact * 1.01
+    depth[:4] = 0.5  # 20 % of the rows grossly wrong, too near
+    confidence = np.ones_like(exact)
+    confidence[:, -3:] = 0
+    save_maps(tmp_path / "exact" / "a.npz", preview=False, depth=exact, confidence=(exact > 0).astype(np.float32))
+    save_maps(tmp_path / "maps" / "a.npz", preview=False, depth=depth, confidence=confidence)
+    acc = depth_accuracy(tmp_path / "maps", tmp_path / "exact")
+    assert acc["median_signed_error"] == pytest.approx(0.01, rel=1e-4)
+    assert acc["median_rel_error"] == pytest.approx(0.01, rel=1e-4)
+    assert acc["density"] == pytest.approx(24 / 27)
+    assert acc["wrong_10"] == pytest.approx(4 / 20)
+    save_maps(tmp_path / "small" / "a.npz", preview=False, depth=exact[::2], confidence=confidence[::2])
+    with pytest.raises(Eve3dError, match="different sizes"):
+        depth_accuracy(tmp_path / "small", tmp_path / "exact")
+
+
+def plane_pair(tilt_deg: float, disparity: float, margin: int = 48) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The ``plane`` kind's textured plane 2 units in front of a camera, turned by
+    ``tilt_deg`` about the camera's x axis (depth changing from top to bottom), and its exact right view (ray-cast, 2×2
+    supersampled, as the photos are) with a baseline giving ``disparity`` px at 2 units.
+    Returns left, right (``margin`` columns wider), exact depth, fx and the baseline."""
+    f = 1.1 * W
+    cam = Camera("a.png", W, H, np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]]), np.eye(3), np.zeros(3))
+    a = np.radians(tilt_deg)
+    rot = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    parts = KINDS["plane"].parts()
+    mesh = parts[0].mesh
+    mesh.vertices = type(mesh.vertices)(np.asarray(mesh.vertices) @ rot.T + [0, 0, 2.0])
+    caster = MeshRaycaster([mesh])
+    baseline = disparity * 2.0 / f
+    image = lambda c: np.clip(shade(parts, caster.cast(c, SUPERSAMPLE), 0).mean(0) * 255 + 0.5, 0, 255).astype(np.uint8)  # noqa: E731
+    right = image(margin_camera(right_camera(cam, baseline), margin))
+    return image(cam), right, caster.cast(cam).depth, f, baseline
+
+
+def sgbm_depth(left, right, f, baseline, settings=None, margin: int = 48):
+    padded = np.pad(left, ((0, 0), (margin, 0), (0, 0)))
+    disp, confidence = (m[:, margin:] for m in sgbm_disparity(padded, right, 64, settings))
+    return np.where(disp > 0, f * baseline / np.maximum(disp, 1e-6), 0), confidence >= 0.5
+
+
+@pytest.mark.parametrize("tilt", [10, 50])
+def test_sgbm_on_exact_right_views_of_a_plane_has_no_depth_bias(tilt):
+    """The issue's bound: SGBM on exact right views of a plane 2 units away (slanted, so
+    that its disparity runs through fractions of a pixel), median signed relative depth
+    error within 0.1 %."""
+    left, right, exact, f, baseline = plane_pair(tilt, 25.6)
+    depth, confident = sgbm_depth(left, right, f, baseline)
+    use = confident & (exact > 0) & (depth > 0)
+    assert use.mean() > 0.7
+    assert abs(np.median((depth[use] - exact[use]) / exact[use])) < 0.001
+
+
+def test_single_pass_aggregation_carries_the_disparity_down_a_slope():
+    """The cause of the priors' bias on the object's table: SGBM's single-pass modes
+    aggregate only along paths from above and the left, so on a surface slanted top to
+    bottom they carry one end's disparity into the other (here 0.5 % of depth); the two-
+    pass 8-direction mode (the default) stays within 0.1 %."""
+    left, right, exact, f, baseline = plane_pair(35, 25.6)
+    errors = {}
+    for mode in ("hh", "3way"):
+        depth, confident = sgbm_depth(left, right, f, baseline, SgbmSettings(sgm_mode=mode))
+        use = confident & (exact > 0) & (depth > 0)
+        errors[mode] = abs(float(np.median((depth[use] - exact[use]) / exact[use])))
+    assert errors["hh"] < 0.001
+    assert errors["3way"] > 0.004
+
+
+def test_sgbm_mode_out_of_range_is_named():
+    with pytest.raises(Eve3dError, match="stereo.sgm_mode"):
+        SgbmSettings(sgm_mode="fast")
+
+
+@pytest.fixture(scope="module")
+def plane_dataset(tmp_path_factory):
+    """The ``plane`` kind, small: 12 views at 160×120 (exact poses, GT mesh)."""
+    from eve3d.synth import generate
+
+    return generate("plane", tmp_path_factory.mktemp("plane") / "plane", views=12, width=160, height=120)
+
+
+def train_plane(dataset, out, **overrides):
+    """``pgsr`` at the ``cpu`` preset, briefly (300 steps, its schedule scaled down); returns
+    the accuracy of its rendered depth against the exact depth."""
+    from eve3d.config import stage_settings, training_config
+    from eve3d.io import load_scene
+    from eve3d.joint import JointSettings, train_joint
+    from eve3d.methods import methods
+    from eve3d.priors.oracle import oracle_priors
+
+    brief = ["joint.iterations=300", "joint.dn_from=100", "joint.mv_from=100", "joint.checkpoint_every=0",
+             "joint.densify.refine_stop=250", "joint.previews=0"]
+    config = training_config(None, brief + [f"train.{k}={v}" for k, v in overrides.items()])
+    settings = stage_settings(JointSettings, "joint", config, overrides=methods()["pgsr"].settings, method="pgsr")
+    scene = load_scene(dataset)
+    train_joint(scene, out / "pgsr", settings)
+    oracle_priors(scene, out / "exact", preview=False)
+    return depth_accuracy(out / "pgsr" / "depth", out / "exact")
+
+
+def test_pgsr_on_a_plane_has_no_depth_bias(plane_dataset, tmp_path):
+    """The issue's bound: a textured plane 2 units away, trained briefly with ``pgsr`` at the
+    ``cpu`` preset: the rendered depth's median signed error within 0.1 % (measured +0.02 %).
+    Started from 3DGS's isotropic balls instead of discs (``init_thickness: 1``), the same
+    run renders the plane 0.5 % too near: the cause this guards against."""
+    acc = train_plane(plane_dataset, tmp_path / "discs")
+    assert acc["density"] > 0.9
+    assert abs(acc["median_signed_error"]) < 0.001
+    balls = train_plane(plane_dataset, tmp_path / "balls", init_thickness=1.0)
+    assert balls["median_signed_error"] < -0.003
+
+
+def test_initial_gaussians_on_a_surface_are_discs_in_its_plane():
+    """Points on a slanted plane become discs whose thin axis is the plane's normal;
+    points scattered in a volume (3DGS's random start) stay balls."""
+    from eve3d.gaussians import GaussianModel
+    from eve3d.render.projection import quat_to_rotmat
+
+    rng = np.random.default_rng(0)
+    normal = np.array([0.3, -0.4, 0.866]) / np.linalg.norm([0.3, -0.4, 0.866])
+    u = np.cross(normal, [1.0, 0, 0])
+    u /= np.linalg.norm(u)
+    plane = rng.uniform(-1, 1, (400, 2)) @ np.stack([u, np.cross(normal, u)])
+    volume = rng.uniform(-1, 1, (400, 3)) + 5
+    model = GaussianModel.from_points(np.concatenate([plane, volume]), None, 1, thickness=0.1)
+    axes = quat_to_rotmat(model.params["quats"]).numpy()
+    scales = model.scales.numpy()
+    assert np.abs(axes[:400, :, 2] @ normal).min() > 0.999
+    np.testing.assert_allclose(scales[:400, 2] / scales[:400, 0], 0.1, rtol=1e-5)
+    assert (scales[400:, 2] / scales[400:, 0] > 0.5).mean() > 0.95
+    balls = GaussianModel.from_points(plane, None, 1)  # thickness 1: 3DGS's initialisation
+    assert np.allclose(balls.scales.numpy()[:, 2], balls.scales.numpy()[:, 0])
