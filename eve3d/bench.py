@@ -196,8 +196,12 @@ def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
     width = max(len(title), *map(len, labels))
     lines = [f"{title:<{width}} {'median signed':>13} {'median rel. error':>17} {'density':>8} {'off >5 %':>9} "
              f"{'off >10 %':>9}"]
-    lines += [f"{label:<{width}} {r['median_signed_error'] * 100:+11.2f} % {r['median_rel_error'] * 100:15.2f} % "
-              f"{r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % {r['wrong_10'] * 100:7.1f} %" for label, r in zip(labels, rows)]
+    for label, r in zip(labels, rows):
+        if r["median_signed_error"] is None:  # no confident pixel with an exact depth
+            lines.append(f"{label:<{width}} {'-':>13} {'-':>17} {r['density']:8.3f}")
+            continue
+        lines.append(f"{label:<{width}} {r['median_signed_error'] * 100:+11.2f} % {r['median_rel_error'] * 100:15.2f} % "
+                     f"{r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % {r['wrong_10'] * 100:7.1f} %")
     return lines
 
 

@@ -142,14 +142,14 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     optional = lambda v: Path(v) if v else None  # noqa: E731
     inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
                         plane=optional(a.plane), settings=settings)
-    metrics = protocol.run(inputs)
     if bool(a.depth) != bool(a.exact_depth):
         raise Eve3dError("--depth and --exact-depth go together: the maps the mesh fused, and the exact depth of "
                          "the same views")
+    metrics = protocol.run(inputs)
     if a.depth:
         from eve3d.evaluate.depth import depth_accuracy
 
-        acc = depth_accuracy(Path(a.depth), Path(a.exact_depth))
+        acc = depth_accuracy(Path(a.depth), Path(a.exact_depth), min_confidence=a.min_confidence)
         metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
                         "depth_density": acc["density"], "depth_maps": str(a.depth)})
     if "tau" in metrics:
@@ -269,6 +269,7 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from eve3d.mesh import MeshSettings
     from eve3d.stereo import BASELINE_MODES, SGM_MODES, BaselineSettings, MatchCheck, SgbmSettings
     from eve3d.synth import KINDS
 
@@ -375,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--coarsen", type=float, default=1.0)
     s.add_argument("--trunc-factor", type=float, default=4.0)
     s.add_argument("--depth-max", type=float)
-    s.add_argument("--min-confidence", type=float, default=0.5)
+    s.add_argument("--min-confidence", type=float, default=MeshSettings.min_confidence)
     s.add_argument("--weight-threshold", type=float, default=1.0)
     s.add_argument("--largest-cluster", action=argparse.BooleanOptionalAction, default=None)
     s.add_argument("--min-cluster-fraction", type=float, default=0.01)
@@ -406,6 +407,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--depth", help="the depth maps the mesh was fused from: their median signed and absolute "
                                    "relative error against --exact-depth are added to the metrics")
     s.add_argument("--exact-depth", help="exact depth maps of the same views (results/SCENE/priors/oracle)")
+    s.add_argument("--min-confidence", type=float, default=MeshSettings.min_confidence,
+                   help="--depth pixels scored: confidence at least this (the mesh's mesh.min_confidence)")
     s.add_argument("--scene-name")
     s.add_argument("--method")
     s.set_defaults(func=_cmd_evaluate)

@@ -50,8 +50,10 @@ REGISTRY: dict[str, Method] = {m.name: m for m in (
     Method("oracle", "TSDF of the exact depth of the GT mesh (an upper bound; scenes with a GT mesh)",
            fuses="oracle"),
     Method("stereo-tsdf", "TSDF of the stereo priors as they are (the GS2Mesh-style baseline)", fuses="priors"),
-    Method("3dgs", "3DGS: L_rgb only, split by the plain 2D-mean gradient, meshed from the expected depth",
-           settings={**_PHOTOMETRIC_ONLY, "depth": "depth_expected", "densify": {"absgrad": False}}),
+    Method("3dgs", "3DGS: isotropic initial Gaussians, L_rgb only, split by the plain 2D-mean gradient, meshed from the"
+           " expected depth",
+           settings={**_PHOTOMETRIC_ONLY, "depth": "depth_expected", "densify": {"absgrad": False},
+                     "init_thickness": 1.0}),  # 3DGS starts from isotropic balls
     Method("pgsr", "PGSR: planar Gaussians, flattening, depth–normal and multi-view (rendered neighbour) losses"),
     Method("prior-fixed", "PGSR + L_prior towards the fixed stereo depth D* (the paper's 'PGSR + FoundationStereo'):"
            " no learnable priors, no LBA", settings={"priors": "fixed", "lba_weight": 0.0}),

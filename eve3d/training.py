@@ -85,7 +85,7 @@ class TrainSettings:
 
     def __post_init__(self) -> None:
         if not 0 < self.init_thickness <= 1:
-            raise Eve3dError(f"train.init_thickness: must be in (0, 1] (1 = isotropic balls), got {self.init_thickness}")
+            raise Eve3dError(f"init_thickness: must be in (0, 1] (1 = isotropic balls), got {self.init_thickness}")
 
 
 def settings_from_dict(cls, values: dict, where: str = "settings"):

@@ -12,12 +12,15 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.maps import load_maps
+from eve3d.mesh import MeshSettings
 from eve3d.scene import Eve3dError
 
 
-def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "") -> dict:
+def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
+                   min_confidence: float = MeshSettings.min_confidence) -> dict:
     """Relative depth error (D − D_exact) / D_exact of the maps in ``maps_dir`` on their
-    confident pixels (confidence ≥ 0.5: a prior's M^c, a rendered depth's alpha) where the
+    confident pixels (confidence ≥ ``min_confidence``, the pixels a mesh fuses: a prior's
+    M^c, a rendered depth's alpha; every pixel of a map without confidence) where the
     exact depth is known: its median (signed, positive = too far), the median of its
     absolute value, the density (those pixels / pixels with exact depth) and the shares
     off by more than 5 % and 10 % ("confident and wrong")."""
@@ -31,15 +34,19 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "") -> dict:
         if not path.exists():
             raise Eve3dError(f"{path}: missing (the exact depth has this view)")
         ref, maps = load_maps(ref_path), load_maps(path)
+        for file, m in ((ref_path, ref), (path, maps)):
+            if "depth" not in m:
+                raise Eve3dError(f"{file}: no 'depth' array (it has {', '.join(m) or 'none'})")
+        confidence = maps.get("confidence", np.ones_like(maps["depth"]))
         if maps["depth"].shape != ref["depth"].shape:
             raise Eve3dError(f"{path}: depth is {maps['depth'].shape[::-1]}, the exact depth "
                              f"{ref['depth'].shape[::-1]}: maps of different sizes cannot be compared")
-        has = ref["confidence"] > 0
-        use = has & (maps["confidence"] >= 0.5) & (maps["depth"] > 0)
+        has = ref.get("confidence", ref["depth"]) > 0
+        use = has & (confidence >= min_confidence) & (maps["depth"] > 0)
         errors.append((maps["depth"][use] - ref["depth"][use]) / ref["depth"][use])
         confident, known = confident + int(use.sum()), known + int(has.sum())
     err = np.concatenate(errors).astype(np.float64)
-    stat = lambda f: float(f(err)) if len(err) else float("nan")  # noqa: E731
+    stat = lambda f: float(f(err)) if len(err) else None  # noqa: E731  (None: no pixel to score, valid JSON)
     return {"data": label or str(maps_dir), "median_signed_error": stat(np.median),
             "median_rel_error": stat(lambda e: np.median(np.abs(e))), "density": confident / max(known, 1),
             "wrong_5": stat(lambda e: (np.abs(e) > 0.05).mean()), "wrong_10": stat(lambda e: (np.abs(e) > 0.10).mean())}

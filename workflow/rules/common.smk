@@ -248,5 +248,6 @@ def evaluate_args(wildcards, input):
     args += [f"{cli_flag(key)} {value}" for key, value in evaluate_settings(wildcards.scene).items()
              if value is not None]
     if scores_depth(wildcards.scene):
-        args.append(f"--depth {input.depth} --exact-depth {input.exact_depth}")
+        args.append(f"--depth {input.depth} --exact-depth {input.exact_depth}"
+                    f" --min-confidence {config['mesh']['min_confidence']}")
     return " ".join(args)
