@@ -42,7 +42,8 @@ def surface_frames(points: np.ndarray, tree=None) -> tuple[np.ndarray, np.ndarra
 
     tree = tree or cKDTree(points)
     _, idx = tree.query(points, k=SURFACE_NEIGHBOURS + 1)
-    around = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    around = points[idx]
+    around -= around.mean(axis=1, keepdims=True)
     variances, axes = np.linalg.eigh(np.einsum("nki,nkj->nij", around, around))  # ascending
     frames = axes[:, :, ::-1].copy()  # largest, middle, smallest (the normal) as columns
     frames[np.linalg.det(frames) < 0, :, 0] *= -1

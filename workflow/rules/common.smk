@@ -117,9 +117,10 @@ def gt_input(wildcards):
     return raw_dataset(wildcards) if "synthetic" in scene_config(wildcards.scene) else gt_mesh(wildcards)
 
 
-def stereo_priors(scene):
-    """The folder of the stereo priors that methods use (backend stereo.backend)."""
-    return f"{RESULTS}/{scene}/priors/{config['stereo']['backend']}"
+def stereo_priors(scene, backend=None):
+    """The folder of a scene's depth priors from ``backend``; by default the ones methods
+    use (stereo.backend)."""
+    return f"{RESULTS}/{scene}/priors/{backend or config['stereo']['backend']}"
 
 
 def joint_inputs(wildcards):
@@ -134,7 +135,7 @@ def depth_source(wildcards):
     """Per-view depth maps that a method's mesh fuses."""
     fuses = METHOD[wildcards.method].fuses
     if fuses == "oracle":
-        return f"{RESULTS}/{wildcards.scene}/priors/oracle"
+        return stereo_priors(wildcards.scene, "oracle")
     if fuses == "priors":  # the GS2Mesh-style baseline: fuse the priors as they are
         return stereo_priors(wildcards.scene)
     return f"{RESULTS}/{wildcards.scene}/{wildcards.method}/depth"
@@ -229,7 +230,7 @@ def evaluate_inputs(wildcards):
         inputs[name] = gt_input(wildcards) if key == "gt_mesh" else scene_value(sc, key)
     if scores_depth(wildcards.scene):
         inputs["depth"] = depth_source(wildcards)
-        inputs["exact_depth"] = f"{RESULTS}/{wildcards.scene}/priors/oracle"
+        inputs["exact_depth"] = stereo_priors(wildcards.scene, "oracle")
     return inputs
 
 
