@@ -156,7 +156,8 @@ def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0, wls: bool 
     error and bad-2.0 (% of confident pixels off by more than 2 px)."""
     from skimage import data
 
-    from eve3d.stereo import SgbmSettings, sgbm_disparity
+    from eve3d.settings import SgbmSettings
+    from eve3d.stereo import sgbm_disparity
 
     left, right, gt = data.stereo_motorcycle()
     known = np.isfinite(gt)

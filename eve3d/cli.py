@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -20,7 +19,8 @@ def _cmd_synth(a: argparse.Namespace) -> None:
 
 
 def _cmd_sfm(a: argparse.Namespace) -> None:
-    from eve3d.sfm import SfmSettings, run_sfm
+    from eve3d.settings import SfmSettings
+    from eve3d.sfm import run_sfm
 
     settings = SfmSettings(matcher=a.matcher, camera_model=a.camera_model, single_camera=not a.per_image_camera,
                            max_image_size=a.max_image_size, min_registered_fraction=a.min_registered_fraction,
@@ -31,21 +31,21 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.stereo import BaselineSettings, render_right_views, settings_of
+    from eve3d.settings import BaselineSettings, from_namespace
+    from eve3d.stereo import render_right_views
 
-    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out), settings_of(BaselineSettings, a),
-                              a.backend)
+    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out),
+                              from_namespace(BaselineSettings, a, "stereo"), a.backend)
     b = [v["baseline"] for v in info["views"].values()]
     print(f"wrote {len(b)} right views to {a.out}/right (baseline {min(b):.4g} to {max(b):.4g})")
 
 
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-
-    from eve3d.stereo import MatchCheck, settings_of
+    from eve3d.settings import MatchCheck, from_namespace
 
     scene = load_scene(a.scene)
-    check = settings_of(MatchCheck, a)
+    check = from_namespace(MatchCheck, a, "stereo")
     if a.backend == "oracle":
         from eve3d.priors.oracle import oracle_priors
 
@@ -53,21 +53,20 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     elif not a.stereo:
         raise Eve3dError(f"--backend {a.backend} needs --stereo (the output folder of `eve3d stereo-render`)")
     elif a.backend == "sgbm":
-        from eve3d.stereo import SgbmSettings, sgbm_priors
+        from eve3d.settings import SgbmSettings
+        from eve3d.stereo import sgbm_priors
 
-        settings = SgbmSettings(sgm_mode=a.sgm_mode, block_size=a.block_size, uniqueness=a.uniqueness,
-                                lr_threshold=a.lr_threshold, min_texture=a.min_texture, wls=a.wls,
-                                wls_lambda=a.wls_lambda, wls_sigma=a.wls_sigma)
+        settings = from_namespace(SgbmSettings, a, "stereo")
         sgbm_priors(scene, Path(a.stereo), Path(a.out), settings, preview=not a.no_preview, check=check)
     else:
         from eve3d.config import load_mapping
-        from eve3d.priors.onnx import OnnxSpec, OnnxStereo
+        from eve3d.priors.onnx import OnnxStereo
+        from eve3d.settings import OnnxSpec, from_mapping
         from eve3d.stereo import stereo_priors
-        from eve3d.training import settings_from_dict
 
         if not a.onnx:
             raise Eve3dError("--backend onnx needs --onnx SPEC (a YAML/JSON file or inline JSON; config stereo.onnx)")
-        spec = settings_from_dict(OnnxSpec, load_mapping(a.onnx, "--onnx"), "stereo.onnx")
+        spec = from_mapping(OnnxSpec, load_mapping(a.onnx, "--onnx"), "stereo.onnx")
         stereo_priors(scene, Path(a.stereo), Path(a.out), OnnxStereo(spec), "ONNX stereo", preview=not a.no_preview,
                       check=check)
     print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
@@ -76,7 +75,8 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
 def _cmd_pretrain(a: argparse.Namespace) -> None:
     from eve3d.config import stage_settings, training_config
     from eve3d.io import load_scene
-    from eve3d.pretrain import PretrainSettings, pretrain
+    from eve3d.pretrain import pretrain
+    from eve3d.settings import PretrainSettings
 
     settings = stage_settings(PretrainSettings, "pretrain", training_config(a.config, a.set))
     metrics = pretrain(load_scene(a.scene), Path(a.out), settings)
@@ -89,8 +89,9 @@ def _cmd_pretrain(a: argparse.Namespace) -> None:
 def _cmd_joint(a: argparse.Namespace) -> None:
     from eve3d.config import stage_settings, training_config
     from eve3d.io import load_scene
-    from eve3d.joint import JointSettings, train_joint
+    from eve3d.joint import train_joint
     from eve3d.methods import method
+    from eve3d.settings import JointSettings
 
     config = training_config(a.config, a.set)
     m = method(a.method, config["variants"], "--method")
@@ -113,7 +114,8 @@ def _add_training_options(s: argparse.ArgumentParser) -> None:
 
 def _cmd_mesh(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.mesh import MeshSettings, check_mesh_path, fuse, write_mesh
+    from eve3d.mesh import check_mesh_path, fuse, write_mesh
+    from eve3d.settings import MeshSettings
 
     check_mesh_path(Path(a.out))
     scene = load_scene(a.scene, check_images=False)
@@ -128,9 +130,10 @@ def _cmd_mesh(a: argparse.Namespace) -> None:
 
 
 def _cmd_evaluate(a: argparse.Namespace) -> None:
-    from eve3d.evaluate import EvalInputs, EvalSettings, protocol_for
+    from eve3d.evaluate import EvalInputs, protocol_for
     from eve3d.fileio import atomic_path
     from eve3d.io import load_scene
+    from eve3d.settings import EvalSettings, from_namespace
 
     scene = load_scene(a.scene, check_images=False)
     protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol")
@@ -138,7 +141,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     if reconstruction is None:
         flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
         raise Eve3dError(f"the {protocol.name} protocol scores a {protocol.scores}: give {flag}")
-    settings = EvalSettings(**{f.name: getattr(a, f.name) for f in dataclasses.fields(EvalSettings)})
+    settings = from_namespace(EvalSettings, a, "evaluate")
     optional = lambda v: Path(v) if v else None  # noqa: E731
     inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
                         plane=optional(a.plane), settings=settings)
@@ -269,8 +272,7 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from eve3d.mesh import MeshSettings
-    from eve3d.stereo import BASELINE_MODES, SGM_MODES, BaselineSettings, MatchCheck, SgbmSettings
+    from eve3d.settings import BASELINE_MODES, SGM_MODES, BaselineSettings, MatchCheck, MeshSettings, SgbmSettings
     from eve3d.synth import KINDS
 
     p = argparse.ArgumentParser(prog="eve3d", description=__doc__)
@@ -323,7 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--backend", choices=["oracle", "sgbm", "onnx"], default="oracle",
                    help="oracle = exact depth of a scene with a known mesh; sgbm = OpenCV SGBM on the stereo pairs; "
                         "onnx = a stereo network exported to ONNX (--onnx)")
-    s.add_argument("--onnx", help="onnx: the model spec, a YAML/JSON file or inline JSON (keys: eve3d.priors.onnx.OnnxSpec)")
+    s.add_argument("--onnx", help="onnx: the model spec, a YAML/JSON file or inline JSON (keys: eve3d.settings.OnnxSpec)")
     s.add_argument("--gt-mesh", help="mesh for the oracle (default: the scene's own GT mesh)")
     s.add_argument("--stereo", help="sgbm: the output folder of `eve3d stereo-render`")
     sgbm = SgbmSettings()
@@ -382,7 +384,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--min-cluster-fraction", type=float, default=0.01)
     s.set_defaults(func=_cmd_mesh)
 
-    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS, EvalSettings
+    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS
+    from eve3d.settings import EvalSettings
 
     defaults = EvalSettings()
     s = sub.add_parser("evaluate", help="a reconstruction vs ground truth → metrics.json",

@@ -155,8 +155,8 @@ def training_config(spec: str | None = None, overrides: list[str] = ()) -> dict:
 def stage_settings(cls, section: str, config: dict, overrides: dict | None = None, **fixed):
     """Settings of a training stage: ``train``, then ``section``, then ``overrides`` (a
     method's settings), merged key by key, plus ``fixed``."""
-    from eve3d.training import settings_from_dict
+    from eve3d.settings import from_mapping
 
     values = deep_merge(deep_merge(config.get("train") or {}, config.get(section) or {}), overrides or {})
     values.update(fixed)
-    return settings_from_dict(cls, values, where=f"{section} (train + {section} sections)")
+    return from_mapping(cls, values, where=f"{section} (train + {section} sections)")

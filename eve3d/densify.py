@@ -1,7 +1,7 @@
 """Adaptive density control: clone, split, prune, opacity reset (3DGS, with AbsGS's split).
 
-Shaped like gsplat's ``DefaultStrategy``: the policy is a dataclass whose fields are the
-documented defaults, and its hook :meth:`Densifier.step_post_backward` is its only contact
+Shaped like gsplat's ``DefaultStrategy``: the policy's settings and their documented
+defaults are :class:`eve3d.settings.DensifySettings`, and its hook :meth:`Densifier.step_post_backward` is its only contact
 with the training loop (the renderer already retains the 2D means' gradient, so no
 pre-backward hook is needed). The row operations (:func:`duplicate`, :func:`split`,
 :func:`remove`) edit the parameter dict and each parameter's Adam state together.
@@ -21,11 +21,11 @@ Rules, at every ``refine_every`` steps in [``refine_start``, ``refine_stop``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 
 from eve3d.render import RenderOutput
+from eve3d.settings import DensifySettings
 
 Params = dict[str, torch.Tensor]
 Optimizers = dict[str, torch.optim.Optimizer]
@@ -92,25 +92,12 @@ def split(params: Params, optimizers: Optimizers, mask: torch.Tensor, generator:
                                           torch.zeros_like(s.index_select(0, sel)).repeat(samples, *([1] * (s.dim() - 1)))]))
 
 
-@dataclass
 class Densifier:
-    """The densification policy; defaults are 3DGS's, with AbsGS's split threshold."""
+    """The densification policy of :class:`~eve3d.settings.DensifySettings`: gradient
+    statistics per Gaussian, then clone, split, prune and opacity reset on schedule."""
 
-    grow_grad2d: float = 0.0002
-    grow_absgrad2d: float = 0.0008
-    absgrad: bool = True
-    grow_scale3d: float = 0.01
-    prune_opa: float = 0.005
-    prune_scale3d: float = 0.1
-    prune_min_views: int = 0
-    refine_start: int = 500
-    refine_stop: int = 15_000
-    refine_every: int = 100
-    reset_every: int = 3000
-    """Opacity reset period; 0 = never (short CPU runs)."""
-    max_gaussians: int = 3_000_000
-    """Growth budget: when the candidates would exceed it, those with the largest gradient
-    (relative to their threshold) grow first. A memory and time guard; pruning goes on."""
+    def __init__(self, settings: DensifySettings):
+        self.s = settings
 
     def init_state(self, n: int, n_views: int, device=None) -> dict[str, torch.Tensor]:
         """Accumulators, one row per Gaussian (kept in the checkpoint)."""
@@ -124,12 +111,12 @@ class Densifier:
         counts of what changed (empty when nothing did)."""
         self._accumulate(state, out, view_index)
         changed: dict[str, int] = {}
-        if step >= self.refine_stop:
+        if step >= self.s.refine_stop:
             return changed
-        if step > self.refine_start and step % self.refine_every == 0:
+        if step > self.s.refine_start and step % self.s.refine_every == 0:
             changed = self.refine(params, optimizers, state, step, scene_scale, generator)
-        if self.reset_every and step % self.reset_every == 0:
-            reset_opacity(params, optimizers, 2 * self.prune_opa)
+        if self.s.reset_every and step % self.s.reset_every == 0:
+            reset_opacity(params, optimizers, 2 * self.s.prune_opa)
             changed["reset"] = 1
         return changed
 
@@ -150,14 +137,14 @@ class Densifier:
         """One grow-and-prune pass with the statistics gathered so far (then cleared)."""
         count = state["count"].clamp_min(1)
         grad = state["grad2d"] / count
-        big = params["log_scales"].detach().exp().amax(-1) > self.grow_scale3d * scene_scale
-        split_by = state["absgrad2d"] / count if self.absgrad else grad
-        split_threshold = self.grow_absgrad2d if self.absgrad else self.grow_grad2d
-        clone = (grad > self.grow_grad2d) & ~big
+        big = params["log_scales"].detach().exp().amax(-1) > self.s.grow_scale3d * scene_scale
+        split_by = state["absgrad2d"] / count if self.s.absgrad else grad
+        split_threshold = self.s.grow_absgrad2d if self.s.absgrad else self.s.grow_grad2d
+        clone = (grad > self.s.grow_grad2d) & ~big
         splits = (split_by > split_threshold) & big
-        room = self.max_gaussians - len(grad)  # a clone or a split adds one Gaussian
+        room = self.s.max_gaussians - len(grad)  # a clone or a split adds one Gaussian
         if int(clone.sum() + splits.sum()) > room:
-            excess = torch.where(big, split_by / split_threshold, grad / self.grow_grad2d)
+            excess = torch.where(big, split_by / split_threshold, grad / self.s.grow_grad2d)
             excess = torch.where(clone | splits, excess, torch.zeros_like(excess))
             chosen = torch.zeros_like(clone)
             chosen[torch.argsort(excess, descending=True)[:max(room, 0)]] = True
@@ -180,13 +167,13 @@ class Densifier:
     def prune_mask(self, params: Params, state: dict, step: int, scene_scale: float) -> torch.Tensor:
         """Which Gaussians the pruning rules remove now."""
         opacity = torch.sigmoid(params["logit_opacities"].detach())
-        prune = opacity < self.prune_opa
-        if self.reset_every and step > self.reset_every:
-            prune |= params["log_scales"].detach().exp().amax(-1) > self.prune_scale3d * scene_scale
-        if self.prune_min_views > 0:
+        prune = opacity < self.s.prune_opa
+        if self.s.reset_every and step > self.s.reset_every:
+            prune |= params["log_scales"].detach().exp().amax(-1) > self.s.prune_scale3d * scene_scale
+        if self.s.prune_min_views > 0:
             n_views = state["seen"].shape[1]
             old = step - state["birth"] >= 2 * n_views
-            prune |= old & (state["seen"].sum(1) < self.prune_min_views)
+            prune |= old & (state["seen"].sum(1) < self.s.prune_min_views)
         return prune
 
 

@@ -34,69 +34,8 @@ from eve3d.priors.learnable import Priors, comparison_preview, filled_log_depth,
 from eve3d.render import RenderOutput
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Eve3dError, Scene
-from eve3d.training import Trainer, TrainSettings, View, initial_points
-
-CHOICES = {"depth": ("depth", "depth_expected"), "init": ("sparse", "priors"), "priors": ("none", "fixed", "learnable")}
-
-
-@dataclass
-class JointSettings(TrainSettings):
-    method: str = "pgsr"
-    """The method's name (``eve3d.methods``): recorded, and names the progress bar."""
-    depth: str = "depth"
-    """Depth rendered for meshing: ``depth`` (PGSR's unbiased depth) or ``depth_expected``."""
-    scale_weight: float = 100.0
-    """Flattening loss: weight × mean(min scale of the visible Gaussians)."""
-    dn_weight: float = 0.015
-    dn_from: int = 7000
-    """First step of the depth–normal consistency loss."""
-    mv_from: int = 7000
-    """First step of the multi-view losses."""
-    geo_weight: float = 0.03
-    ncc_weight: float = 0.15
-    mv_threshold: float = 1.0
-    """Pixels whose forward–backward reprojection error φ is this large (px) are left out."""
-    ncc_patch: int = 7
-    ncc_pixels: int = 4096
-    """Reference pixels per step whose patches enter the NCC loss."""
-    neighbours: int = 4
-    exposure: bool = False
-    """Learn a 3×4 colour transform per training image (PGSR's exposure compensation)."""
-    exposure_lr: float = 1e-3
-    init_random_points: int = 100_000
-    init: str = "sparse"
-    """Initial Gaussians: ``sparse`` (the SfM points; random points without them) or
-    ``priors`` (points back-projected from confident prior depths, Eve3D)."""
-    init_prior_points: int = 500_000
-    """Points drawn for ``init: priors`` (the paper: 500k on DTU, 1M on T&T)."""
-    priors: str = "none"
-    """Stereo priors: ``none``; ``fixed`` (D* is the target of L_prior and the neighbours'
-    depth in the LBA); ``learnable`` (D̂ per view, initialised from D*: Eve3D)."""
-    prior_weight: float = 0.05
-    """λ_prior: |D_prior − D| + ``prior_normal_weight`` · (1 − N_prior·N) on confident pixels."""
-    prior_normal_weight: float = 1.0
-    prior_normal_span: int = 1
-    """N_prior from central differences of the prior depth over ±span pixels (1 = adjacent
-    pixels; wider averages out the per-pixel noise of a matcher like SGBM)."""
-    prior_from: int = 500
-    """First step of every prior term."""
-    joint_from: int = 7000
-    """T_joint: L_prior switches from D* to D̂, L_pull starts, the LBA's reference becomes the
-    rendered depth."""
-    pull_weight: float = 0.05
-    """λ_pull: |D̂ − sg(D)| on pixels M^c does not trust."""
-    lba_weight: float = 0.15
-    """λ_lba: (geometric + photometric) averaged over the ``neighbours`` best views."""
-    prior_lr: float = 1e-4
-    """Adam step of log D̂ (a relative change of depth: the same for every scene scale)."""
-    consistent_views: int = 2
-    """M^c update: confident where the prior passes the geometric check in this many neighbours."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for key, allowed in CHOICES.items():
-            if getattr(self, key) not in allowed:
-                raise Eve3dError(f"joint.{key}: {getattr(self, key)!r} is not one of {', '.join(allowed)}")
+from eve3d.settings import JointSettings
+from eve3d.training import Trainer, View, initial_points
 
 
 def multiview_pair(ref: View, nbr: View, depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,

@@ -3,7 +3,7 @@ the workflow read.
 
 A method either fuses depth maps that another stage made (``oracle``: the exact depth of a
 GT mesh; ``stereo-tsdf``: the stereo priors as they are), or is trained by the joint stage.
-A trained method is nothing but settings of :class:`eve3d.joint.JointSettings` over the
+A trained method is nothing but settings of :class:`eve3d.settings.JointSettings` over the
 config's ``train`` and ``joint`` sections: the joint stage has one loss whose parts the
 settings switch on and off, so a new variant is a few lines of config, not a new branch::
 
@@ -31,7 +31,7 @@ class Method:
     fuses: str | None = None
     """Depth fused as it is, without training: ``oracle`` or ``priors``; None = trained."""
     settings: Mapping[str, Any] = field(default_factory=dict)
-    """Joint-stage settings (``eve3d.joint.JointSettings`` keys) over the config's sections."""
+    """Joint-stage settings (``eve3d.settings.JointSettings`` keys) over the config's sections."""
 
     @property
     def trains(self) -> bool:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -26,37 +26,10 @@ from eve3d.densify import remove
 from eve3d.fileio import atomic_path
 from eve3d.gaussians import GaussianModel
 from eve3d.render import render
-from eve3d.scene import Eve3dError, Scene
+from eve3d.scene import Scene
 from eve3d.stereo import TONE_FILE, scene_tone_curve
-from eve3d.training import Trainer, TrainSettings, initial_points
-
-
-@dataclass
-class PretrainSettings(TrainSettings):
-    iterations: int = 7000
-    holdout: int = 8
-    reinit_at: tuple[int, ...] = (2000,)
-    """Steps at which the Gaussians are re-initialised from rendered depth."""
-    reinit_points: int = 0
-    """Points sampled at a re-initialisation; 0 = as many as there are Gaussians then."""
-    simplify_at: tuple[int, ...] = (5000,)
-    simplify_keep: float = 0.6
-    """Fraction of Gaussians (highest blending weight first) a simplification keeps."""
-    init_random_points: int = 100_000
-    """Random initial points when the scene has no sparse points."""
-    equalize: float = 3.0
-    """The photos are fitted through one tone curve of the whole scene: contrast-limited
-    histogram equalisation of every photo's grey levels, the histogram clipped at this × its
-    mean bin count (``eve3d.stereo.scene_tone_curve``); 0 = the photos as they are. Faint
-    texture (a dark, low-contrast wall) then weighs in the loss as much as bright texture, so
-    the model fits it, and its geometry there. The curve is written beside the PLY
-    (``tone_curve.json``) and the stereo stage matches the photos through it."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.equalize != 0 and self.equalize < 1:
-            raise Eve3dError(f"pretrain.equalize: must be 0 (off) or at least 1 (the histogram's clip limit), "
-                             f"got {self.equalize}")
+from eve3d.settings import PretrainSettings
+from eve3d.training import Trainer, initial_points
 
 
 @torch.no_grad()

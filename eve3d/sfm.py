@@ -8,33 +8,13 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
 from eve3d.fileio import atomic_dir, check_image, list_images
 from eve3d.io.colmap import import_pycolmap
 from eve3d.io.loader import METADATA, find_colmap_model
 from eve3d.scene import Eve3dError
-
-MATCHERS = ("exhaustive", "sequential")
-
-
-@dataclass
-class SfmSettings:
-    matcher: str = "exhaustive"
-    """'exhaustive' for small unordered sets, 'sequential' for ordered captures (video)."""
-    camera_model: str = "SIMPLE_RADIAL"
-    """COLMAP model estimated for the images (undistorted to PINHOLE afterwards)."""
-    single_camera: bool = True
-    """All images share one camera (one device, fixed zoom)."""
-    max_image_size: int = 3200
-    min_registered_fraction: float = 0.9
-    """Fail when fewer than this fraction of the images are registered."""
-    seed: int = 0
-    threads: int = 1
-    """Threads for extraction, matching and mapping. 1 makes SfM bit-reproducible (pycolmap's
-    multi-threaded matching and mapping are not: the worst camera moved by 0.5 % of the scene
-    radius between runs); -1 uses every core, about twice as fast on 2 cores."""
+from eve3d.settings import SfmSettings
 
 
 def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Path:
@@ -42,8 +22,6 @@ def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Pa
     pycolmap = import_pycolmap()
 
     s = settings or SfmSettings()
-    if s.matcher not in MATCHERS:
-        raise Eve3dError(f"sfm matcher {s.matcher!r} unknown; choose one of {', '.join(MATCHERS)}")
     image_dir = dataset / "images"
     images = list_images(image_dir)
     for path in images:

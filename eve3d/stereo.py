@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -20,52 +20,12 @@ from eve3d.fileio import atomic_dir, read_image, write_image
 from eve3d.maps import save_maps
 from eve3d.neighbours import select_neighbours
 from eve3d.scene import Camera, Eve3dError, Scene
+from eve3d.settings import SGM_MODES, BaselineSettings, MatchCheck, SgbmSettings
 
 
 def right_camera(cam: Camera, baseline: float) -> Camera:
     """``cam`` moved by ``baseline`` along its x axis (same R and K): t_r = t − (B, 0, 0)."""
     return replace(cam, t=cam.t - np.array([baseline, 0.0, 0.0]), image_path=None, mask_path=None)
-
-
-SGM_MODES = {"hh": "STEREO_SGBM_MODE_HH", "hh4": "STEREO_SGBM_MODE_HH4", "3way": "STEREO_SGBM_MODE_SGBM_3WAY",
-             "sgbm": "STEREO_SGBM_MODE_SGBM"}
-"""``stereo.sgm_mode`` → OpenCV's StereoSGBM mode: 8 directions in two passes (``hh``), 4
-(``hh4``), or the single-pass variants (``3way``, ``sgbm``)."""
-
-
-@dataclass
-class SgbmSettings:
-    """OpenCV StereoSGBM (P1 = 8·3·b², P2 = 32·3·b², DESIGN §6)."""
-
-    sgm_mode: str = "hh"
-    """Cost aggregation (``SGM_MODES``). ``hh`` aggregates along 8 directions in two
-    passes; the single-pass modes (``3way``, ``sgbm``) only along the directions a pass from
-    the top can see, none from below, and on a surface slanted from top to bottom they
-    carry one end's disparity into the other: on exact right views of the object scene the
-    depth comes out 0.19 % (``3way``) and 0.61 % (``sgbm``) too far, −0.04 % with ``hh``.
-    ``hh`` keeps two costs per pixel and disparity (W·H·D·4 bytes: 2.1 GB at 1080×1920 with
-    256 disparities)."""
-    block_size: int = 5
-    max_disparity: float | None = None
-    """Largest disparity searched (rounded up to a multiple of 16); None = from the depth range."""
-    uniqueness: int = 10
-    speckle_window: int = 100
-    speckle_range: int = 2
-    lr_threshold: float = 1.0
-    """Left–right check: keep pixels whose two disparities differ by at most this (px)."""
-    min_texture: float = 0.5
-    """Pixels whose grey-level standard deviation over the block (0–255 scale) is below this
-    are not confident: SGM's path aggregation fills flat regions (an empty black background)
-    with disparities that pass the left–right check but mean nothing."""
-    wls: bool = False
-    """Edge-aware WLS filtering of the disparity (dense); the confidence becomes the filter's
-    own confidence map / 255 (its left–right check, lowered near depth edges)."""
-    wls_lambda: float = 8000.0
-    wls_sigma: float = 1.5
-
-    def __post_init__(self) -> None:
-        if self.sgm_mode not in SGM_MODES:
-            raise Eve3dError(f"stereo.sgm_mode: {self.sgm_mode!r} is not one of {', '.join(SGM_MODES)}")
 
 
 def _matcher(min_disparity: int, num_disparities: int, s: SgbmSettings):
@@ -160,35 +120,6 @@ def local_std(image: np.ndarray, size: int) -> np.ndarray:
 PAIRS_FILE = "pairs.json"
 TONE_FILE = "tone_curve.json"
 """Written by the pretrain beside its PLY: the (256,) curve its photos were fitted through."""
-BASELINE_MODES = ("disparity", "radius")
-
-
-@dataclass
-class BaselineSettings:
-    """Each view's baseline B (DESIGN §2); the fields are the ``stereo.*`` config keys.
-    ``baseline: radius``: the paper's B = ``baseline_factor`` × the scene radius, one B for
-    every view. ``baseline: disparity``: B per view, so that a point at the view's median
-    rendered depth Z has the disparity ``target_disparity`` × image width, bounded by
-    B ≤ ``max_baseline`` × Z (a vergence of at most 2·atan(max_baseline / 2), so occlusions
-    stay small). A radius-based B gives an inside-out capture, whose camera radius is far
-    smaller than the distance to the walls, disparities of a few pixels."""
-
-    baseline: str = "disparity"
-    baseline_factor: float = 0.07
-    target_disparity: float = 0.08
-    max_baseline: float = 0.15
-
-    def __post_init__(self) -> None:
-        if self.baseline not in BASELINE_MODES:
-            raise Eve3dError(f"stereo.baseline: {self.baseline!r} is not one of {', '.join(BASELINE_MODES)}")
-        for key in ("baseline_factor", "target_disparity", "max_baseline"):
-            if not getattr(self, key) > 0:
-                raise Eve3dError(f"stereo.{key}: must be > 0, got {getattr(self, key)}")
-
-    def of_view(self, cam: Camera, radius: float, median_depth: float) -> float:
-        if self.baseline == "radius":
-            return self.baseline_factor * radius
-        return min(self.target_disparity * cam.width / cam.fx, self.max_baseline) * median_depth
 
 
 def margin_camera(cam: Camera, margin: int) -> Camera:
@@ -241,45 +172,6 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
                                           "max_disparity": float(d_max), "margin": margin}
         (tmp / PAIRS_FILE).write_text(json.dumps(info, indent=2))
     return info
-
-
-@dataclass
-class MatchCheck:
-    """Checks every backend's confidence passes through, independent of the matcher agreeing
-    with itself (a left–right check passes a consistent but wrong match)."""
-
-    ncc_threshold: float = 0.5
-    """Confident only where the photo and the right view warped back by the disparity agree:
-    their NCC over ``ncc_window``² pixels is at least this (0 = off)."""
-    ncc_window: int = 7
-    range_margin: float = 1.0
-    """Not confident within this many px of either end of the disparity range searched: a
-    disparity pinned there is the matcher running out of range, not a match."""
-    mv_ncc_threshold: float = 0.5
-    """Confident only where at least ``mv_views`` of the view's ``mv_neighbours`` best
-    neighbours (``eve3d.neighbours``) agree with the photo: NCC ≥ this between the photo and
-    the neighbour's photo warped by the prior depth (0 = off). Real photos on both sides,
-    so it catches a depth the pretrained model got wrong, which the right view inherits."""
-    mv_views: int = 1
-    mv_neighbours: int = 4
-
-    def __post_init__(self) -> None:
-        for key in ("ncc_threshold", "mv_ncc_threshold"):
-            if not 0 <= getattr(self, key) <= 1:
-                raise Eve3dError(f"stereo.{key}: must be in [0, 1], got {getattr(self, key)}")
-        if self.ncc_window < 3 or self.ncc_window % 2 == 0:
-            raise Eve3dError(f"stereo.ncc_window: must be an odd number ≥ 3, got {self.ncc_window}")
-        if not 1 <= self.mv_views <= self.mv_neighbours:
-            raise Eve3dError(f"stereo.mv_views: must be between 1 and stereo.mv_neighbours ({self.mv_neighbours}), "
-                             f"got {self.mv_views}")
-
-
-def settings_of(cls: type, values) -> object:
-    """``cls`` (BaselineSettings, MatchCheck) from the fields ``values`` holds, a mapping
-    (a config's ``stereo`` section: validated, a bad value names its key) or parsed CLI
-    arguments."""
-    get = values.get if isinstance(values, dict) else lambda k, d=None: getattr(values, k, d)
-    return cls(**{f.name: get(f.name) for f in fields(cls) if get(f.name) is not None})
 
 
 def warped_ncc(left: np.ndarray, right: np.ndarray, disp: np.ndarray, margin: int = 0,

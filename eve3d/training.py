@@ -16,7 +16,7 @@ import json
 import math
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,97 +31,7 @@ from eve3d.maps import preview_image
 from eve3d.render import RenderOutput, render
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Camera, Eve3dError, Scene
-
-
-@dataclass
-class LearningRates:
-    """Adam step sizes of 3DGS. ``means`` is multiplied by the scene scale and decays
-    exponentially to ``means_final`` × scene scale over the run."""
-
-    means: float = 1.6e-4
-    means_final: float = 1.6e-6
-    quats: float = 1e-3
-    log_scales: float = 5e-3
-    logit_opacities: float = 5e-2
-    sh0: float = 2.5e-3
-    shN: float = 2.5e-3 / 20
-
-
-@dataclass
-class TrainSettings:
-    """What every training stage shares. Defaults are the paper's (GPU, full schedule);
-    the presets in ``config/presets`` set the CPU ones."""
-
-    iterations: int = 30_000
-    resolution: float = 1.0
-    """Image size factor for training (0.5 = half width and height)."""
-    sh_degree: int = 3
-    sh_degree_interval: int = 1000
-    """Raise the active SH degree by one every this many steps."""
-    ssim_weight: float = 0.2
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    backend: str = "auto"
-    """Rasteriser (``eve3d.render.BACKENDS``)."""
-    antialiased: bool = True
-    """Opacity compensation for the 0.3 px² screen-space dilation (gsplat's antialiased mode).
-    Without it, the dilation widens edge-on and sub-pixel Gaussians and the optimiser shrinks
-    every surface by about a pixel footprint to match the photos' silhouettes."""
-    init_thickness: float = 0.1
-    """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
-    are discs in the plane of their 8 nearest points, this thin along its normal (a
-    fraction of the in-plane scale); 1 = 3DGS's isotropic balls. Balls, split in 3D while
-    they are still round, leave a cloud in front of and behind each surface whose front
-    layer is what renders: depth 0.2–0.7 % too near (README, Choices)."""
-    device: str = "auto"
-    """``auto`` = CUDA when present, else CPU."""
-    seed: int = 0
-    checkpoint_every: int = 1000
-    holdout: int = 0
-    """Hold out every ``holdout``-th view (index % holdout == 0) for evaluation; 0 = none."""
-    previews: int = 3
-    """Views whose RGB, depth and normals are written as PNG at the end."""
-    lr: LearningRates = field(default_factory=LearningRates)
-    densify: Densifier = field(default_factory=Densifier)
-
-    def __post_init__(self) -> None:
-        if not 0 < self.init_thickness <= 1:
-            raise Eve3dError(f"init_thickness: must be in (0, 1] (1 = isotropic balls), got {self.init_thickness}")
-
-
-def settings_from_dict(cls, values: dict, where: str = "settings"):
-    """Build a settings dataclass from a mapping, recursing into nested dataclasses. An
-    unknown key, or a value of the wrong type, is an error that names the key."""
-    known = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - set(known))
-    if unknown:
-        raise Eve3dError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
-    defaults = cls()
-    kwargs = {}
-    for name, value in values.items():
-        default = getattr(defaults, name)
-        if dataclasses.is_dataclass(default):
-            if not isinstance(value, dict):
-                raise Eve3dError(f"{where}.{name}: expected a mapping, got {value!r}")
-            kwargs[name] = settings_from_dict(type(default), value, f"{where}.{name}")
-            continue
-        if default is None:  # optional: any value of the documented form
-            ok = True
-            value = tuple(value) if isinstance(value, list) else value
-        elif isinstance(default, tuple):
-            ok = isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) for v in value)
-            value = tuple(value) if ok else value
-        elif isinstance(default, bool):
-            ok = isinstance(value, bool)
-        elif isinstance(default, (int, float)):
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and (
-                isinstance(default, float) or float(value).is_integer())
-            value = type(default)(value) if ok else value
-        else:
-            ok = isinstance(value, type(default))
-        if not ok:
-            raise Eve3dError(f"{where}.{name}: {value!r} is not a valid value (expected like {default!r})")
-        kwargs[name] = value
-    return cls(**kwargs)
+from eve3d.settings import TrainSettings
 
 
 @dataclass
@@ -217,7 +127,8 @@ class Trainer:
         lr = dataclasses.asdict(self.s.lr)
         lr["means"] *= self.scene_scale
         self.optimizers = {k: torch.optim.Adam([p], lr=lr[k], eps=1e-15) for k, p in params.items()}
-        self.densify_state = self.s.densify.init_state(len(self.model), len(self.views), self.device)
+        self.densifier = Densifier(self.s.densify)
+        self.densify_state = self.densifier.init_state(len(self.model), len(self.views), self.device)
 
     def add_extra(self, name: str, value: torch.Tensor, lr: float) -> torch.Tensor:
         """A non-Gaussian parameter (e.g. per-image exposure) with its own Adam."""
@@ -269,13 +180,13 @@ class Trainer:
         bar = tqdm(total=self.s.iterations, initial=self.step, desc=self.name, unit="it", file=sys.stderr,
                    mininterval=1.0)
         ema_loss = ema_psnr = None
-        densify = self.s.densify
+        densify = self.densifier
         while self.step < self.s.iterations:
             step = self.step
             for group in self.optimizers["means"].param_groups:
                 group["lr"] = self.means_lr(step)
             view = self.next_view()
-            out = self.render(view, step, absgrad=densify.absgrad)
+            out = self.render(view, step, absgrad=densify.s.absgrad)
             terms = loss_terms(step, view, out)
             loss = sum(terms.values())
             if not torch.isfinite(loss):

@@ -7,7 +7,8 @@ from eve3d.evaluate.depth import depth_accuracy
 from eve3d.maps import save_maps
 from eve3d.raycast import MeshRaycaster
 from eve3d.scene import Camera, Eve3dError
-from eve3d.stereo import SgbmSettings, margin_camera, right_camera, sgbm_disparity
+from eve3d.settings import SgbmSettings
+from eve3d.stereo import margin_camera, right_camera, sgbm_disparity
 from eve3d.synth import KINDS, shade
 
 W, H = 320, 240
@@ -45,7 +46,7 @@ def test_sgm_mode_is_declared_once_for_the_schema():
     import yaml
 
     from eve3d.config import REPO
-    from eve3d.stereo import SGM_MODES
+    from eve3d.settings import SGM_MODES
 
     stereo = yaml.safe_load((REPO / "workflow/schemas/config.schema.yaml").read_text())["properties"]["stereo"]
     assert stereo["properties"]["sgm_mode"]["enum"] == list(SGM_MODES)
@@ -127,7 +128,8 @@ def train_plane(dataset, out, **overrides):
     the accuracy of its rendered depth against the exact depth."""
     from eve3d.config import stage_settings, training_config
     from eve3d.io import load_scene
-    from eve3d.joint import JointSettings, train_joint
+    from eve3d.joint import train_joint
+    from eve3d.settings import JointSettings
     from eve3d.methods import methods
 
     brief = ["joint.iterations=300", "joint.dn_from=100", "joint.mv_from=100", "joint.checkpoint_every=0",

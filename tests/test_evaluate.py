@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from eve3d.evaluate import PROTOCOLS, EvalInputs, EvalSettings
+from eve3d.evaluate import PROTOCOLS, EvalInputs
+from eve3d.settings import EvalSettings
 from eve3d.evaluate.common import distance_metrics, mesh_distances, read_mesh
 from eve3d.evaluate.dtu import cull_by_masks
 from eve3d.evaluate.synthetic import visible_surface_samples
@@ -124,7 +125,7 @@ def test_evaluate_cli_writes_tau_and_its_rule(object_dataset, tmp_path):
     assert r.returncode == 2 and "the dtu protocol needs gt, obs_mask, plane" in r.stderr
     r = run_cli("evaluate", "--mesh", object_dataset / "gt/mesh.ply", "--gt", object_dataset / "gt/mesh.ply",
                 "--scene", object_dataset, "--out", out, "--tau", "-1")
-    assert r.returncode == 2 and "evaluate.tau (--tau): -1" in r.stderr
+    assert r.returncode == 2 and "evaluate.tau (--tau): expected a number > 0, got -1" in r.stderr
 
 
 def test_dtu_culling_removes_exactly_the_vertices_outside_the_dilated_masks(tmp_path):

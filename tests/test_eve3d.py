@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from eve3d.joint import JointSettings, multiview_pair, prior_plane, setup_joint, train_joint
+from eve3d.joint import multiview_pair, prior_plane, setup_joint, train_joint
+from eve3d.settings import JointSettings
 from eve3d.losses import forward_backward_error
 from eve3d.maps import load_maps, save_maps
 from eve3d.methods import methods

@@ -45,12 +45,12 @@ def test_a_variant_in_config_trains_exactly_like_the_registered_method(tiny_scen
 def _overrides(settings: dict) -> dict:
     from dataclasses import replace
 
-    from eve3d.densify import Densifier
+    from eve3d.settings import DensifySettings
 
     out = dict(settings)
     if "densify" in out:
         base = _joint_settings().densify
-        out["densify"] = replace(base, **out["densify"]) if isinstance(base, Densifier) else out["densify"]
+        out["densify"] = replace(base, **out["densify"]) if isinstance(base, DensifySettings) else out["densify"]
     return out
 
 

@@ -7,8 +7,9 @@ import pytest
 from eve3d.bench import stereo_motorcycle
 from eve3d.maps import load_maps
 from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.stereo import (PAIRS_FILE, BaselineSettings, SgbmSettings, checked_confidence, equalizing_curve,
-                          local_std, render_right_views, right_camera, sgbm_disparity, sgbm_priors)
+from eve3d.settings import BaselineSettings, SgbmSettings
+from eve3d.stereo import (PAIRS_FILE, checked_confidence, equalizing_curve, local_std, render_right_views,
+                          right_camera, sgbm_disparity, sgbm_priors)
 
 
 def test_right_camera_gives_disparity_fx_b_over_z():
@@ -102,7 +103,7 @@ def test_sgbm_priors_match_the_photo_through_the_pretrains_tone_curve(tmp_path):
 
 
 def test_pretrain_equalize_out_of_range_is_named():
-    from eve3d.pretrain import PretrainSettings
+    from eve3d.settings import PretrainSettings
 
     with pytest.raises(Eve3dError, match="pretrain.equalize"):
         PretrainSettings(equalize=0.5)

@@ -8,11 +8,12 @@ import torch
 
 from eve3d.densify import Densifier, reset_opacity
 from eve3d.gaussians import GaussianModel
-from eve3d.joint import JointSettings, train_joint
+from eve3d.joint import train_joint
 from eve3d.losses import depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss
 from eve3d.render.projection import CameraTensors
-from eve3d.scene import Camera
-from eve3d.training import NonFiniteLoss, Trainer, TrainSettings, settings_from_dict
+from eve3d.scene import Camera, Eve3dError
+from eve3d.settings import DensifySettings, JointSettings, TrainSettings, from_mapping
+from eve3d.training import NonFiniteLoss, Trainer
 
 
 def constructed_model():
@@ -36,7 +37,7 @@ def constructed_model():
 
 def test_densify_and_prune_follow_the_rules():
     params, optimizers = constructed_model()
-    d = Densifier(grow_grad2d=0.0002, grow_absgrad2d=0.0008, grow_scale3d=0.01, prune_opa=0.005)
+    d = Densifier(DensifySettings(grow_grad2d=0.0002, grow_absgrad2d=0.0008, grow_scale3d=0.01, prune_opa=0.005))
     state = d.init_state(6, n_views=4)
     state["count"][:] = 2
     state["grad2d"][:] = 2 * torch.tensor([0.001, 0.0001, 0.001, 0.0001, 0.0001, 0.001])
@@ -64,7 +65,7 @@ def test_densify_and_prune_follow_the_rules():
 
 def test_prune_by_views_and_size_and_reset_opacity():
     params, optimizers = constructed_model()
-    d = Densifier(prune_min_views=2, reset_every=1000, prune_scale3d=0.03)
+    d = Densifier(DensifySettings(prune_min_views=2, reset_every=1000, prune_scale3d=0.03))
     state = d.init_state(6, n_views=4)
     state["seen"][:, 0] = True
     state["seen"][[0, 1], 1] = True  # only 0 and 1 were seen by two views
@@ -133,14 +134,14 @@ def test_ncc_gradient_reaches_the_plane():
 
 def test_unknown_or_mistyped_setting_is_named():
     with pytest.raises(Exception, match="joint.densify: unknown key.*grow_grad"):
-        settings_from_dict(JointSettings, {"densify": {"grow_grad": 1}}, "joint")
-    with pytest.raises(Exception, match="iterations: 'many'"):
-        settings_from_dict(JointSettings, {"iterations": "many"}, "joint")
+        from_mapping(JointSettings, {"densify": {"grow_grad": 1}}, "joint")
+    with pytest.raises(Exception, match="joint.iterations: expected an integer ≥ 0, got 'many'"):
+        from_mapping(JointSettings, {"iterations": "many"}, "joint")
 
 
 def test_200_iterations_raise_psnr_by_5_db(tiny_scene, tmp_path):
     s = TrainSettings(iterations=200, sh_degree=0, checkpoint_every=0,
-                      densify=Densifier(refine_start=50, refine_every=50, reset_every=0))
+                      densify=DensifySettings(refine_start=50, refine_every=50, reset_every=0))
     trainer = Trainer(tiny_scene, s, tmp_path, "fit")
     trainer.set_model(GaussianModel.from_points(tiny_scene.points, tiny_scene.point_colors / 255, 0))
     before = trainer.evaluate(trainer.train_ids)["psnr"]
@@ -153,7 +154,7 @@ def test_200_iterations_raise_psnr_by_5_db(tiny_scene, tmp_path):
 def _joint_settings(**kw) -> JointSettings:
     base = dict(method="pgsr", iterations=60, sh_degree=1, sh_degree_interval=20, checkpoint_every=25,
                 dn_from=20, mv_from=20, ncc_pixels=256, previews=1,
-                densify=Densifier(refine_start=10, refine_every=10, refine_stop=50, reset_every=0))
+                densify=DensifySettings(refine_start=10, refine_every=10, refine_stop=50, reset_every=0))
     base.update(kw)
     return JointSettings(**base)
 
@@ -195,7 +196,10 @@ def test_changed_settings_do_not_resume_a_stale_checkpoint(tiny_scene, tmp_path,
 
 
 def test_nan_stops_with_iteration_and_term_and_keeps_checkpoint(tiny_scene, tmp_path):
-    s = _joint_settings(dn_weight=float("nan"), dn_from=30, checkpoint_every=10)
+    with pytest.raises(Eve3dError, match="joint.dn_weight: expected a number ≥ 0, got nan"):
+        _joint_settings(dn_weight=float("nan"))  # a NaN setting is refused up front
+    s = _joint_settings(dn_from=30, checkpoint_every=10)
+    s.dn_weight = float("nan")  # so the loss term turns NaN at step 30
     with pytest.raises(NonFiniteLoss, match=r"loss term depth_normal is not finite at iteration 30.*step 30"):
         train_joint(tiny_scene, tmp_path, s)
     ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
@@ -205,7 +209,7 @@ def test_nan_stops_with_iteration_and_term_and_keeps_checkpoint(tiny_scene, tmp_
 
 def test_growth_budget_keeps_the_strongest_candidates():
     params, optimizers = constructed_model()
-    d = Densifier(max_gaussians=7, prune_opa=0.0)  # room for one more Gaussian
+    d = Densifier(DensifySettings(max_gaussians=7, prune_opa=0.0))  # room for one more Gaussian
     state = d.init_state(6, n_views=4)
     state["count"][:] = 1
     # candidates, by gradient over threshold: clone 5 (15×), clone 0 (5×), split 1 (2.5×)

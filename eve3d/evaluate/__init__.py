@@ -18,45 +18,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eve3d.scene import Eve3dError, Scene
+from eve3d.settings import EvalSettings
 
 
 def cli_flag(name: str) -> str:
     """The ``eve3d evaluate`` flag of an :class:`EvalSettings` or :class:`EvalInputs` field."""
     return "--" + name.replace("_", "-")
-
-
-@dataclass
-class EvalSettings:
-    """The ``evaluate`` section of the config (every default lives here)."""
-
-    tau: float | None = None
-    """Distance threshold of precision/recall; None = the protocol's rule (synthetic: a
-    fraction of the visible GT's bounding-box diagonal; tnt: the toolbox's per-scene table)."""
-    tau_fraction: float = 0.0025
-    """Synthetic τ = this × the diagonal of the bounding box of the GT surface the cameras see."""
-    min_views: int = 2
-    """Synthetic: a GT surface point counts as visible when this many cameras see it (2:
-    what a multi-view reconstruction can triangulate; TSDF fusion with the default
-    ``mesh.weight_threshold`` also drops surfaces fused from a single view)."""
-    samples: int = 500_000
-    """Synthetic: surface samples scored on each of the reconstruction (inside the crop) and
-    the visible GT; with exact point-to-triangle distances the count sets only the sampling
-    noise and the memory. tnt: at most this many area samples beside the mesh's vertices."""
-    dtu_density: float = 0.2
-    """DTU: sampling density and thinning radius in mm."""
-    dtu_max_dist: float = 20.0
-    """DTU: distances at or above this (mm) are left out of the means."""
-
-    def __post_init__(self) -> None:
-        where = lambda key: f"evaluate.{key} ({cli_flag(key)})"  # noqa: E731
-        for key in ("tau", "tau_fraction", "dtu_density", "dtu_max_dist"):
-            value = getattr(self, key)
-            if value is not None and not value > 0:
-                raise Eve3dError(f"{where(key)}: {value!r} is not a valid value (expected a number > 0)")
-        if self.min_views < 1:
-            raise Eve3dError(f"{where('min_views')}: {self.min_views!r} is not a valid value (expected at least 1)")
-        if self.samples < 1000:
-            raise Eve3dError(f"{where('samples')}: {self.samples!r} is too few (expected at least 1000)")
 
 
 @dataclass

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.maps import load_maps
-from eve3d.mesh import MeshSettings
+from eve3d.settings import MeshSettings
 from eve3d.scene import Eve3dError
 
 

@@ -20,7 +20,8 @@ RENDER_KEYS = ("resolution", "background", "antialiased", "backend", "device")
 def evaluate_views(inputs: EvalInputs) -> dict:
     """PSNR and SSIM of the held-out views (module docstring)."""
     from eve3d.gaussians import GaussianModel
-    from eve3d.training import Trainer, TrainSettings
+    from eve3d.settings import TrainSettings
+    from eve3d.training import Trainer
 
     holdout = PROTOCOLS["nvs"].joint_settings["holdout"]
     model_path = inputs.reconstruction

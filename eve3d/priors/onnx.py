@@ -10,39 +10,13 @@ from the mirrored pair.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from eve3d.scene import Eve3dError
+from eve3d.settings import OnnxSpec
 from eve3d.stereo import left_right_consistent, mirrored
-
-
-@dataclass
-class OnnxSpec:
-    model: str = ""
-    """Path of the .onnx file."""
-    left: str = "left"
-    right: str = "right"
-    output: str = "disp"
-    layout: str = "NCHW"
-    """Input layout, ``NCHW`` or ``NHWC`` (batch 1, RGB)."""
-    scale: float = 255.0
-    """Pixel values are fed as image / 255 × scale (255 = 0..255, 1 = 0..1) ..."""
-    mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    std: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    """... then normalised per channel: (value − mean) / std."""
-    size: tuple[int, int] | None = None
-    """Fixed network input (height, width): images are resized to it, disparity rescaled."""
-    divisor: int = 1
-    """Otherwise, pad height and width up to a multiple of this (edge values), crop the output."""
-    channel: int = 0
-    """Channel of the output that holds the disparity (for outputs with a channel axis)."""
-    sign: float = 1.0
-    """Multiply the output by this (−1 for networks that output x_right − x_left)."""
-    lr_threshold: float = 1.0
-    """Left–right check tolerance (px)."""
 
 
 class OnnxStereo:

@@ -21,8 +21,7 @@ import torch
 
 from eve3d.render.projection import CameraTensors, plane_features, project, quat_to_rotmat
 from eve3d.scene import Camera, Eve3dError
-
-BACKENDS = ("auto", "cpu", "torch", "gsplat")
+from eve3d.settings import RENDER_BACKENDS
 
 
 @dataclass
@@ -80,8 +79,8 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     scaled by √(det Σ2D / det(Σ2D + 0.3 I)), so the 0.3 px² dilation no longer makes small or
     edge-on Gaussians cover more than they should.
     """
-    if backend not in BACKENDS:
-        raise Eve3dError(f"render backend {backend!r} unknown; choose one of {', '.join(BACKENDS)}")
+    if backend not in RENDER_BACKENDS:
+        raise Eve3dError(f"render backend {backend!r} unknown; choose one of {', '.join(RENDER_BACKENDS)}")
     if backend == "auto":
         backend = _auto_backend(means)
     cam = camera if isinstance(camera, CameraTensors) else CameraTensors.from_camera(camera, means.dtype, means.device)

@@ -11,7 +11,8 @@ from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_valu
 from eve3d.evaluate import cli_flag
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
-from eve3d.stereo import TONE_FILE, BaselineSettings, MatchCheck, settings_of
+from eve3d.settings import SECTIONS, BaselineSettings, JointSettings, MatchCheck, PretrainSettings, from_mapping
+from eve3d.stereo import TONE_FILE
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")
@@ -49,21 +50,13 @@ for _where, _names in [("methods", config["methods"])] + [
         raise WorkflowError(f"config: {_where}: unknown method(s) {', '.join(_unknown)} (methods: "
                             f"{', '.join(METHOD)}; define others under variants:)")
 METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
-# The training sections are checked now, so that a typo stops the workflow before any job runs.
+# Every section is checked now, so that a typo stops the workflow before any job runs.
 try:
-    from eve3d.joint import JointSettings
-    from eve3d.pretrain import PretrainSettings
-
+    for _section, _settings in SECTIONS.items():
+        from_mapping(_settings, config[_section], _section)
     stage_settings(PretrainSettings, "pretrain", config)
-    for _settings in (BaselineSettings, MatchCheck):
-        settings_of(_settings, config["stereo"])
     for _name in TRAINED:
         stage_settings(JointSettings, "joint", config, overrides=METHOD[_name].settings)
-    if config["stereo"]["backend"] == "onnx":
-        from eve3d.priors.onnx import OnnxSpec
-        from eve3d.training import settings_from_dict
-
-        settings_from_dict(OnnxSpec, config["stereo"]["onnx"], "stereo.onnx")
 except Eve3dError as e:
     raise WorkflowError(f"config: {e}")
 # Jobs run `python -m eve3d`: the interpreter that runs Snakemake (a venv) comes first on
@@ -241,7 +234,7 @@ def evaluate_settings(scene):
 
 def evaluate_args(wildcards, input):
     """The protocol, its inputs, and every `evaluate` key given in the config as the CLI
-    flag of the same name (the defaults live in eve3d.evaluate.EvalSettings)."""
+    flag of the same name (the defaults live in eve3d.settings.EvalSettings)."""
     protocol = PROTOCOL[wildcards.scene]
     args = [f"--protocol {protocol.name}", f"--{protocol.scores} {input.reconstruction}"]
     for name, key in protocol.config_inputs.items():  # a generated GT mesh lies inside its dataset folder
