@@ -1,6 +1,8 @@
-"""Workflow configuration: preset merge, JSON-schema validation with defaults, clear errors.
+"""Workflow configuration: preset merge, the schema's structure check, every section built by
+its settings class (``eve3d.settings``: defaults and bounds), clear errors.
 
-Precedence (low → high): schema defaults, ``config/presets/{preset}.yaml``, the user's config.
+Precedence (low → high): the settings classes' defaults, ``config/presets/{preset}.yaml``,
+the user's config.
 """
 from __future__ import annotations
 
@@ -69,6 +71,27 @@ def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEM
         kind = scene.get("synthetic", {}).get("kind")
         if kind is not None and kind not in KINDS:
             raise Eve3dError(f"{source}: scenes.{name}.synthetic.kind: {kind!r} is not one of {', '.join(KINDS)}")
+    return with_section_defaults(config, source)
+
+
+def with_section_defaults(config: dict, source: str = "config") -> dict:
+    """Every section of ``eve3d.settings.SECTIONS`` built by its settings class (the one
+    place its defaults and bounds live) and written back whole; a scene's own ``synthetic``
+    and ``evaluate`` keys are checked too. Errors name ``source`` and the key path."""
+    import dataclasses
+
+    from eve3d.settings import SECTIONS, EvalSettings, SyntheticSettings, from_mapping
+
+    try:
+        for section, cls in SECTIONS.items():
+            config[section] = dataclasses.asdict(from_mapping(cls, config.get(section) or {}, section))
+        for name, scene in config["scenes"].items():
+            own = {k: v for k, v in scene.get("synthetic", {}).items() if k != "kind"}
+            from_mapping(SyntheticSettings, own, f"scenes.{name}.synthetic")
+            if "evaluate" in scene:
+                from_mapping(EvalSettings, {**config["evaluate"], **scene["evaluate"]}, f"scenes.{name}.evaluate")
+    except Eve3dError as e:
+        raise Eve3dError(f"{source}: {e}") from None
     return config
 
 

@@ -41,18 +41,6 @@ def test_depth_accuracy_signs_the_error(tmp_path):
     assert depth_accuracy(tmp_path / "none", tmp_path / "exact")["median_signed_error"] is None  # nothing to score
 
 
-def test_sgm_mode_is_declared_once_for_the_schema():
-    """The schema's stereo.sgm_mode offers SGM_MODES and defaults to SgbmSettings'."""
-    import yaml
-
-    from eve3d.config import REPO
-    from eve3d.settings import SGM_MODES
-
-    stereo = yaml.safe_load((REPO / "workflow/schemas/config.schema.yaml").read_text())["properties"]["stereo"]
-    assert stereo["properties"]["sgm_mode"]["enum"] == list(SGM_MODES)
-    assert stereo["properties"]["sgm_mode"]["default"] == SgbmSettings().sgm_mode
-
-
 def plane_pair(tilt_deg: float, disparity: float, margin: int = 48) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
     """The ``plane`` kind's textured plane 2 units in front of a camera, turned by
     ``tilt_deg`` about the camera's x axis (depth changing from top to bottom), and its exact right view (ray-cast, 2×2

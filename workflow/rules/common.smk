@@ -11,7 +11,7 @@ from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_valu
 from eve3d.evaluate import cli_flag
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
-from eve3d.settings import SECTIONS, BaselineSettings, JointSettings, MatchCheck, PretrainSettings, from_mapping
+from eve3d.settings import BaselineSettings, JointSettings, MatchCheck, PretrainSettings
 from eve3d.stereo import TONE_FILE
 
 try:
@@ -50,10 +50,9 @@ for _where, _names in [("methods", config["methods"])] + [
         raise WorkflowError(f"config: {_where}: unknown method(s) {', '.join(_unknown)} (methods: "
                             f"{', '.join(METHOD)}; define others under variants:)")
 METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
-# Every section is checked now, so that a typo stops the workflow before any job runs.
+# The training sections are checked now (the others by resolve_config), so that a typo stops
+# the workflow before any job runs.
 try:
-    for _section, _settings in SECTIONS.items():
-        from_mapping(_settings, config[_section], _section)
     stage_settings(PretrainSettings, "pretrain", config)
     for _name in TRAINED:
         stage_settings(JointSettings, "joint", config, overrides=METHOD[_name].settings)
