@@ -8,8 +8,6 @@ import numpy as np
 from eve3d.fileio import atomic_path, write_image
 from eve3d.scene import Eve3dError
 
-MAP_KEYS = ("depth", "confidence", "normal")
-
 
 def save_maps(path: Path, preview: bool = True, **maps: np.ndarray) -> None:
     """Write ``path`` (.npz, float32 arrays) atomically, and ``{stem}.{key}.png`` previews."""
