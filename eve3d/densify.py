@@ -1,8 +1,8 @@
 """Adaptive density control: clone, split, prune, opacity reset (3DGS, with AbsGS's split).
 
 Shaped like gsplat's ``DefaultStrategy``: the policy's settings and their documented
-defaults are :class:`eve3d.settings.DensifySettings`, and its hook :meth:`Densifier.step_post_backward` is its only contact
-with the training loop (the renderer already retains the 2D means' gradient, so no
+defaults are :class:`eve3d.settings.DensifySettings`, and its hook
+:meth:`Densifier.step_post_backward` is its only contact with the training loop (the renderer already retains the 2D means' gradient, so no
 pre-backward hook is needed). The row operations (:func:`duplicate`, :func:`split`,
 :func:`remove`) edit the parameter dict and each parameter's Adam state together.
 

@@ -99,7 +99,8 @@ def _in_bounds(value: Any, bounds: dict) -> bool:
 
 
 def check(obj: Any, where: str) -> None:
-    """Every field of a settings object against its kind and bounds; the error names
+    """Every field of a settings object against its kind and bounds, each value converted to
+    its kind on the way (an integral float to an int, a list to a tuple); the error names
     ``where.field``, what is expected and what was given."""
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
@@ -108,9 +109,10 @@ def check(obj: Any, where: str) -> None:
         kind, optional = _kind(str(f.type))
         if value is None and optional:
             continue
-        ok, value = _coerce(kind, value)
-        if not (ok and _in_bounds(value, f.metadata)):
-            raise Eve3dError(f"{where}.{f.name}: expected {_expected(kind, f.metadata)}, got {getattr(obj, f.name)!r}")
+        ok, converted = _coerce(kind, value)
+        if not (ok and _in_bounds(converted, f.metadata)):
+            raise Eve3dError(f"{where}.{f.name}: expected {_expected(kind, f.metadata)}, got {value!r}")
+        setattr(obj, f.name, converted)
 
 
 def from_mapping(cls: type, values: Mapping, where: str) -> Any:
@@ -123,18 +125,11 @@ def from_mapping(cls: type, values: Mapping, where: str) -> Any:
     unknown = sorted(set(values) - set(known))
     if unknown:
         raise Eve3dError(f"{where}: unknown key(s) {', '.join(map(str, unknown))} (known: {', '.join(sorted(known))})")
-    defaults = cls()
     kwargs = {}
     for name, value in values.items():
-        default = getattr(defaults, name)
-        if dataclasses.is_dataclass(default):
-            kwargs[name] = from_mapping(type(default), value, f"{where}.{name}")
-            continue
-        kind, optional = _kind(str(known[name].type))
-        ok, converted = (True, value) if value is None and optional else _coerce(kind, value)
-        if not ok or (value is not None and not _in_bounds(converted, known[name].metadata)):
-            raise Eve3dError(f"{where}.{name}: expected {_expected(kind, known[name].metadata)}, got {value!r}")
-        kwargs[name] = converted
+        nested = known[name].default_factory  # a settings class, for a nested section
+        is_section = isinstance(nested, type) and dataclasses.is_dataclass(nested)
+        kwargs[name] = from_mapping(nested, value, f"{where}.{name}") if is_section else value
     return _made(cls, kwargs, where)
 
 
