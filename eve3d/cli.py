@@ -31,11 +31,11 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.settings import BaselineSettings, from_namespace
+    from eve3d.settings import BaselineSettings, RenderSettings, from_namespace
     from eve3d.stereo import render_right_views
 
     info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out),
-                              from_namespace(BaselineSettings, a, "stereo"), a.backend)
+                              from_namespace(BaselineSettings, a, "stereo"), RenderSettings(backend=a.backend))
     b = [v["baseline"] for v in info["views"].values()]
     print(f"wrote {len(b)} right views to {a.out}/right (baseline {min(b):.4g} to {max(b):.4g})")
 

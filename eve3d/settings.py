@@ -252,7 +252,22 @@ class DensifySettings(Checked):
 
 
 @dataclass
-class TrainSettings(Checked):
+class RenderSettings(Checked):
+    """How a model is rasterised: by the training stages, and by every stage that renders a
+    trained model (the stereo pairs' right views, the nvs protocol) the way it was trained."""
+
+    SECTION: ClassVar[str] = "train"
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    backend: str = setting("auto", choices=RENDER_BACKENDS)
+    """Rasteriser (``RENDER_BACKENDS``)."""
+    antialiased: bool = True
+    """Opacity compensation for the 0.3 px² screen-space dilation (gsplat's antialiased mode).
+    Without it, the dilation widens edge-on and sub-pixel Gaussians and the optimiser shrinks
+    every surface by about a pixel footprint to match the photos' silhouettes."""
+
+
+@dataclass
+class TrainSettings(RenderSettings):
     """What every training stage shares. Defaults are the paper's (GPU, full schedule);
     the presets in ``config/presets`` set the CPU ones."""
 
@@ -264,13 +279,6 @@ class TrainSettings(Checked):
     sh_degree_interval: int = setting(1000, ge=1)
     """Raise the active SH degree by one every this many steps."""
     ssim_weight: float = setting(0.2, ge=0, le=1)
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    backend: str = setting("auto", choices=RENDER_BACKENDS)
-    """Rasteriser (``RENDER_BACKENDS``)."""
-    antialiased: bool = True
-    """Opacity compensation for the 0.3 px² screen-space dilation (gsplat's antialiased mode).
-    Without it, the dilation widens edge-on and sub-pixel Gaussians and the optimiser shrinks
-    every surface by about a pixel footprint to match the photos' silhouettes."""
     init_thickness: float = setting(0.1, gt=0, le=1)
     """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
     are discs in the plane of their 8 nearest points, this thin along its normal (a

@@ -20,7 +20,7 @@ from eve3d.fileio import atomic_dir, read_image, write_image
 from eve3d.maps import save_maps
 from eve3d.neighbours import select_neighbours
 from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.settings import SGM_MODES, BaselineSettings, MatchCheck, SgbmSettings
+from eve3d.settings import SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings
 
 
 def right_camera(cam: Camera, baseline: float) -> Camera:
@@ -131,9 +131,9 @@ def margin_camera(cam: Camera, margin: int) -> Camera:
 
 
 def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: BaselineSettings | None = None,
-                       backend: str = "auto") -> dict:
+                       rendering: RenderSettings | None = None) -> dict:
     """``stereo_render``: the right view of every camera rendered by the pre-trained model
-    (``right/{view}.png``), and ``pairs.json``: per view the baseline, the disparity range to
+    (``right/{view}.png``, rasterised as it was trained: ``rendering``), and ``pairs.json``: per view the baseline, the disparity range to
     search (from the left view's rendered depth: 1st and 99th percentiles, with 25 % margins)
     and ``margin``, the columns the right view extends to the left of the photo's frame so
     that no left pixel's match falls outside it (a matcher's search range then costs no
@@ -143,14 +143,15 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
     from eve3d.gaussians import GaussianModel
     from eve3d.render import render
 
-    baseline = baseline or BaselineSettings()
+    baseline, rendering = baseline or BaselineSettings(), rendering or RenderSettings()
     model = GaussianModel.load_ply(model_path)
     p = model.params
+    background = torch.tensor(rendering.background, dtype=torch.float32)
 
     def draw(cam: Camera):
         centre = torch.tensor(cam.center, dtype=torch.float32)
         return render(p["means"], p["quats"], model.scales, model.opacities, model.colors(centre), cam,
-                      backend=backend, antialiased=True)
+                      background=background, backend=rendering.backend, antialiased=rendering.antialiased)
 
     # the right views come out in the model's grey levels: the photos are matched through the same curve
     tone_path = Path(model_path).with_name(TONE_FILE)
