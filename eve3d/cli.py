@@ -6,15 +6,43 @@ import csv
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from eve3d.scene import Eve3dError
 
 
+def _config(a: argparse.Namespace) -> dict:
+    """The job's configuration (``eve3d.config.job_config``): ``--config``, its preset,
+    ``--set``, then the stage's own flags (dests named ``SECTION.KEY``)."""
+    from eve3d.config import job_config
+
+    flags = {k: v for k, v in vars(a).items() if "." in k and v is not None}
+    return job_config(a.config, a.set, flags)
+
+
+def _settings(a: argparse.Namespace, cls: type, section: str, config: dict | None = None, **kw: Any) -> Any:
+    """``cls`` from the job's ``section`` (``eve3d.config.stage_settings``); an error about a
+    key given by a flag names the flag too."""
+    from eve3d.config import stage_settings
+    from eve3d.settings import flag
+
+    try:
+        return stage_settings(cls, section, _config(a) if config is None else config, **kw)
+    except Eve3dError as e:
+        key, sep, rest = str(e).partition(": ")
+        name = key.rsplit(".", 1)[-1]
+        if sep and any(k.endswith("." + name) and v is not None for k, v in vars(a).items()):
+            raise Eve3dError(f"{key} ({flag(name)}): {rest}") from None
+        raise
+
+
 def _cmd_synth(a: argparse.Namespace) -> None:
+    from eve3d.settings import SyntheticSettings
     from eve3d.synth import generate
 
-    generate(a.kind, Path(a.out), views=a.views, width=a.width, height=a.height, seed=a.seed,
-             images_only=a.images_only, arc=a.arc)
+    s = _settings(a, SyntheticSettings, "synthetic")
+    generate(a.kind, Path(a.out), views=s.views, width=s.width, height=s.height, seed=s.seed,
+             images_only=a.images_only, arc=s.arc)
     print(f"wrote {a.out}")
 
 
@@ -22,64 +50,57 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
     from eve3d.settings import SfmSettings
     from eve3d.sfm import run_sfm
 
-    settings = SfmSettings(matcher=a.matcher, camera_model=a.camera_model, single_camera=not a.per_image_camera,
-                           max_image_size=a.max_image_size, min_registered_fraction=a.min_registered_fraction,
-                           seed=a.seed, threads=a.threads)
-    run_sfm(Path(a.dataset), Path(a.out), settings)
+    run_sfm(Path(a.dataset), Path(a.out), _settings(a, SfmSettings, "sfm"))
     print(f"wrote {a.out}")
 
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.settings import BaselineSettings, RenderSettings, from_namespace
+    from eve3d.settings import BaselineSettings, PretrainSettings, RenderSettings, StereoSettings, pick
     from eve3d.stereo import render_right_views
 
-    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out),
-                              from_namespace(BaselineSettings, a, "stereo"), RenderSettings(backend=a.backend))
+    config = _config(a)
+    stereo = _settings(a, StereoSettings, "stereo", config)
+    rendering = pick(RenderSettings, _settings(a, PretrainSettings, "pretrain", config))  # as the model was trained
+    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out), pick(BaselineSettings, stereo), rendering)
     b = [v["baseline"] for v in info["views"].values()]
     print(f"wrote {len(b)} right views to {a.out}/right (baseline {min(b):.4g} to {max(b):.4g})")
 
 
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.settings import MatchCheck, from_namespace
+    from eve3d.settings import MatchCheck, SgbmSettings, StereoSettings, pick
 
     scene = load_scene(a.scene)
-    check = from_namespace(MatchCheck, a, "stereo")
-    if a.backend == "oracle":
+    s = _settings(a, StereoSettings, "stereo")
+    check = pick(MatchCheck, s)
+    if s.backend == "oracle":
         from eve3d.priors.oracle import oracle_priors
 
         oracle_priors(scene, Path(a.out), Path(a.gt_mesh) if a.gt_mesh else None, preview=not a.no_preview)
     elif not a.stereo:
-        raise Eve3dError(f"--backend {a.backend} needs --stereo (the output folder of `eve3d stereo-render`)")
-    elif a.backend == "sgbm":
-        from eve3d.settings import SgbmSettings
+        raise Eve3dError(f"--backend {s.backend} needs --stereo (the output folder of `eve3d stereo-render`)")
+    elif s.backend == "sgbm":
         from eve3d.stereo import sgbm_priors
 
-        settings = from_namespace(SgbmSettings, a, "stereo")
-        sgbm_priors(scene, Path(a.stereo), Path(a.out), settings, preview=not a.no_preview, check=check)
+        sgbm_priors(scene, Path(a.stereo), Path(a.out), pick(SgbmSettings, s), preview=not a.no_preview, check=check)
     else:
-        from eve3d.config import load_mapping
         from eve3d.priors.onnx import OnnxStereo
-        from eve3d.settings import OnnxSpec, from_mapping
         from eve3d.stereo import stereo_priors
 
-        if not a.onnx:
-            raise Eve3dError("--backend onnx needs --onnx SPEC (a YAML/JSON file or inline JSON; config stereo.onnx)")
-        spec = from_mapping(OnnxSpec, load_mapping(a.onnx, "--onnx"), "stereo.onnx")
-        stereo_priors(scene, Path(a.stereo), Path(a.out), OnnxStereo(spec), "ONNX stereo", preview=not a.no_preview,
+        if not s.onnx.model:
+            raise Eve3dError("--backend onnx needs the model spec: stereo.onnx in --config, or --set stereo.onnx.model=FILE")
+        stereo_priors(scene, Path(a.stereo), Path(a.out), OnnxStereo(s.onnx), "ONNX stereo", preview=not a.no_preview,
                       check=check)
     print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
 
 
 def _cmd_pretrain(a: argparse.Namespace) -> None:
-    from eve3d.config import stage_settings, training_config
     from eve3d.io import load_scene
     from eve3d.pretrain import pretrain
     from eve3d.settings import PretrainSettings
 
-    settings = stage_settings(PretrainSettings, "pretrain", training_config(a.config, a.set))
-    metrics = pretrain(load_scene(a.scene), Path(a.out), settings)
+    metrics = pretrain(load_scene(a.scene), Path(a.out), _settings(a, PretrainSettings, "pretrain"))
     held = metrics["held_out"]
     if held:
         print(f"held-out views ({held['views']}): PSNR {held['psnr']:.2f} dB, SSIM {held['ssim']:.4f}")
@@ -87,29 +108,19 @@ def _cmd_pretrain(a: argparse.Namespace) -> None:
 
 
 def _cmd_joint(a: argparse.Namespace) -> None:
-    from eve3d.config import stage_settings, training_config
     from eve3d.io import load_scene
     from eve3d.joint import train_joint
     from eve3d.methods import method
     from eve3d.settings import JointSettings
 
-    config = training_config(a.config, a.set)
-    m = method(a.method, config["variants"], "--method")
+    config = _config(a)
+    m = method(a.method, config.get("variants") or {}, "--method")
     if not m.trains:
         raise Eve3dError(f"--method {m.name}: {m.summary}; it is not trained by the joint stage")
-    settings = stage_settings(JointSettings, "joint", config, overrides=m.settings, method=m.name)
+    settings = _settings(a, JointSettings, "joint", config, overrides=m.settings, method=m.name)
     metrics = train_joint(load_scene(a.scene), Path(a.out), settings, Path(a.priors) if a.priors else None)
     print(f"training views: PSNR {metrics['train']['psnr']:.2f} dB; wrote {a.out}/point_cloud.ply "
           f"({metrics['gaussians']} Gaussians) and {a.out}/depth/")
-
-
-def _add_training_options(s: argparse.ArgumentParser) -> None:
-    s.add_argument("--scene", required=True, help="posed dataset folder")
-    s.add_argument("--out", required=True, help="output folder (holds the checkpoint a killed run resumes from)")
-    s.add_argument("--config", help="workflow config file (its preset, train/pretrain/joint sections), or an "
-                                    "inline JSON mapping; default: the cpu preset")
-    s.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override one setting, e.g. --set pretrain.iterations=500 (repeatable)")
 
 
 def _cmd_mesh(a: argparse.Namespace) -> None:
@@ -118,12 +129,10 @@ def _cmd_mesh(a: argparse.Namespace) -> None:
     from eve3d.settings import MeshSettings
 
     check_mesh_path(Path(a.out))
+    settings = _settings(a, MeshSettings, "mesh")
     scene = load_scene(a.scene, check_images=False)
     if a.kind:
         scene.kind = a.kind
-    settings = MeshSettings(voxel=a.voxel, coarsen=a.coarsen, trunc_factor=a.trunc_factor, depth_max=a.depth_max,
-                            min_confidence=a.min_confidence, weight_threshold=a.weight_threshold,
-                            largest_cluster=a.largest_cluster, min_cluster_fraction=a.min_cluster_fraction)
     mesh = fuse(scene, Path(a.depth), settings)
     write_mesh(mesh, Path(a.out))
     print(f"wrote {a.out}: {len(mesh.vertices)} vertices, {len(mesh.triangles)} triangles")
@@ -133,15 +142,17 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     from eve3d.evaluate import EvalInputs, protocol_for
     from eve3d.fileio import atomic_path
     from eve3d.io import load_scene
-    from eve3d.settings import EvalSettings, from_namespace
+    from eve3d.settings import EvalSettings, MeshSettings
 
+    config = _config(a)
+    settings = _settings(a, EvalSettings, "evaluate", config)
+    min_confidence = _settings(a, MeshSettings, "mesh", config).min_confidence  # the pixels the mesh fused
     scene = load_scene(a.scene, check_images=False)
     protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol")
     reconstruction = a.model if protocol.scores == "model" else a.mesh
     if reconstruction is None:
         flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
         raise Eve3dError(f"the {protocol.name} protocol scores a {protocol.scores}: give {flag}")
-    settings = from_namespace(EvalSettings, a, "evaluate")
     optional = lambda v: Path(v) if v else None  # noqa: E731
     inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
                         plane=optional(a.plane), settings=settings)
@@ -152,7 +163,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     if a.depth:
         from eve3d.evaluate.depth import depth_accuracy
 
-        acc = depth_accuracy(Path(a.depth), Path(a.exact_depth), min_confidence=a.min_confidence)
+        acc = depth_accuracy(Path(a.depth), Path(a.exact_depth), min_confidence=min_confidence)
         metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
                         "depth_density": acc["density"], "depth_maps": str(a.depth)})
     if "tau" in metrics:
@@ -271,125 +282,138 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
             writer.writerows(rows)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from eve3d.settings import BASELINE_MODES, SGM_MODES, BaselineSettings, MatchCheck, MeshSettings, SgbmSettings
-    from eve3d.synth import KINDS
+_ARG_TYPES = {"int": int, "float": float, "str": str, "any": str}
 
+
+def _yaml_list(value: str) -> list:
+    import yaml
+
+    parsed = yaml.safe_load(value)
+    if not isinstance(parsed, list):
+        raise argparse.ArgumentTypeError(f"expected a list such as [1, 2], got {value!r}")
+    return parsed
+
+
+def _settings_flags(group, cls: type, section: str, only: tuple[str, ...] = (), skip: tuple[str, ...] = ()) -> None:
+    """One flag per field of a settings class, a shorthand of ``--set SECTION.KEY=VALUE``:
+    its name, kind, choices and help (the field's first docstring sentence and its default
+    under the cpu preset) come from ``eve3d.settings``."""
+    from eve3d.config import TRAINING_SECTIONS, job_config
+    from eve3d.settings import flag, keys
+
+    preset = job_config()
+    shared = preset.get("train") or {} if section in TRAINING_SECTIONS else {}
+    given = {**shared, **(preset.get(section) or {})}
+    for key in keys(cls):
+        if (only and key.name not in only) or key.name in skip or key.kind == "dict":
+            continue
+        default = given.get(key.name, key.default)
+        text = key.doc.replace("``", "").split(". ")[0].rstrip(".") + "; " if key.doc else ""
+        kw: dict[str, Any] = {"dest": f"{section}.{key.name}", "default": None,
+                              "help": (text + f"default {json.dumps(default)}").replace("%", "%%")}
+        if key.kind == "bool":
+            kw["action"] = argparse.BooleanOptionalAction
+        elif "choices" in key.bounds:
+            kw["choices"] = list(key.bounds["choices"])
+        else:
+            kw.update(type=_yaml_list if key.kind == "tuple" else _ARG_TYPES[key.kind], metavar=key.kind.upper())
+        group.add_argument(flag(key.name), **kw)
+
+
+def _stage(sub, name: str, func, help: str, *settings: tuple) -> argparse.ArgumentParser:
+    """A stage's subcommand: ``--config``, ``--set`` and the flags of ``settings`` (tuples of
+    ``_settings_flags``' arguments after the parser)."""
+    s = sub.add_parser(name, help=help, description=help + ". Settings, low to high: the settings classes' "
+                       "defaults, the preset, --config, --set, the flags (config/README.md).")
+    s.add_argument("--config", help="a workflow config file or an inline YAML/JSON mapping of sections, merged over "
+                                    "its preset (cpu unless it names one; preset: null for none)")
+    s.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one setting, e.g. --set mesh.voxel=0.01 (repeatable; over --config, under the "
+                        "flags)")
+    groups: dict[str, Any] = {}
+    for cls, section, *which in settings:
+        if section not in groups:
+            groups[section] = s.add_argument_group(f"{section} settings (each flag = --set {section}.KEY=VALUE)")
+        _settings_flags(groups[section], cls, section, *which)
+    s.set_defaults(func=func)
+    return s
+
+
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="eve3d", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
+    for add in (_add_data_parsers, _add_stereo_parsers, _add_training_parsers, _add_mesh_parsers):
+        add(sub)
+    s = sub.add_parser("summary", help="gather metrics.json files into a CSV and print the table")
+    s.add_argument("metrics", nargs="+")
+    s.add_argument("--out", required=True)
+    s.set_defaults(func=_cmd_summary)
+    _add_bench_parser(sub)
+    return p
 
-    s = sub.add_parser("synth", help="generate a synthetic scene with exact ground truth")
+
+def _add_data_parsers(sub) -> None:
+    from eve3d.settings import SfmSettings, SyntheticSettings
+    from eve3d.synth import KINDS
+
+    s = _stage(sub, "synth", _cmd_synth, "generate a synthetic scene with exact ground truth",
+               (SyntheticSettings, "synthetic"))
     s.add_argument("kind", choices=list(KINDS))
     s.add_argument("out", help="output dataset folder (replaced atomically)")
-    s.add_argument("--views", type=int, default=32)
-    s.add_argument("--width", type=int, default=320)
-    s.add_argument("--height", type=int, default=240)
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--arc", type=float, default=360.0, help="azimuth range of the cameras in degrees")
     s.add_argument("--images-only", action="store_true", help="hide the poses under gt/ (to exercise SfM)")
-    s.set_defaults(func=_cmd_synth)
-
-    s = sub.add_parser("sfm", help="pycolmap SfM (or undistortion only) → images/ + sparse/0 (PINHOLE)")
+    s = _stage(sub, "sfm", _cmd_sfm, "pycolmap SfM (or undistortion only) → images/ + sparse/0 (PINHOLE)",
+               (SfmSettings, "sfm"))
     s.add_argument("dataset", help="folder with images/ (and optionally a distorted COLMAP model)")
     s.add_argument("out")
-    s.add_argument("--matcher", choices=["exhaustive", "sequential"], default="exhaustive")
-    s.add_argument("--camera-model", default="SIMPLE_RADIAL")
-    s.add_argument("--per-image-camera", action="store_true", help="one camera per image instead of one shared")
-    s.add_argument("--max-image-size", type=int, default=3200)
-    s.add_argument("--min-registered-fraction", type=float, default=0.9)
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--threads", type=int, default=1,
-                   help="1 (default): bit-reproducible; -1: every core, faster but varies between runs")
-    s.set_defaults(func=_cmd_sfm)
 
-    s = sub.add_parser("stereo-render", help="right views of virtual stereo pairs, rendered by the pretrained model")
+
+def _add_stereo_parsers(sub) -> None:
+    from eve3d.settings import BaselineSettings, MatchCheck, RenderSettings, SgbmSettings, StereoSettings
+
+    s = _stage(sub, "stereo-render", _cmd_stereo_render,
+               "right views of virtual stereo pairs, rendered by the pretrained model",
+               (BaselineSettings, "stereo"), (RenderSettings, "pretrain"))
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--model", required=True, help="pretrained 3DGS PLY (pretrain/point_cloud.ply)")
     s.add_argument("--out", required=True, help="output folder: right/{view}.png and pairs.json (replaced atomically)")
-    base = BaselineSettings()
-    s.add_argument("--baseline", choices=BASELINE_MODES, default=base.baseline,
-                   help="disparity: B per view for --target-disparity at its median depth; radius: the paper's "
-                        "B = --baseline-factor × scene radius")
-    s.add_argument("--baseline-factor", type=float, default=base.baseline_factor,
-                   help="radius mode: B = factor × scene radius")
-    s.add_argument("--target-disparity", type=float, default=base.target_disparity,
-                   help="disparity mode: disparity at the view's median depth, as a fraction of the image width")
-    s.add_argument("--max-baseline", type=float, default=base.max_baseline,
-                   help="disparity mode: B at most this fraction of the view's median depth")
-    s.add_argument("--backend", choices=["auto", "cpu", "torch", "gsplat"], default="auto")
-    s.set_defaults(func=_cmd_stereo_render)
-
-    s = sub.add_parser("stereo-depth", help="depth priors per view ({view}.npz + PNG previews)")
+    s = _stage(sub, "stereo-depth", _cmd_stereo_depth, "depth priors per view ({view}.npz + PNG previews)",
+               (StereoSettings, "stereo", ("backend",)), (SgbmSettings, "stereo"), (MatchCheck, "stereo"))
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--out", required=True, help="output folder (replaced atomically)")
-    s.add_argument("--backend", choices=["oracle", "sgbm", "onnx"], default="oracle",
-                   help="oracle = exact depth of a scene with a known mesh; sgbm = OpenCV SGBM on the stereo pairs; "
-                        "onnx = a stereo network exported to ONNX (--onnx)")
-    s.add_argument("--onnx", help="onnx: the model spec, a YAML/JSON file or inline JSON (keys: eve3d.settings.OnnxSpec)")
-    s.add_argument("--gt-mesh", help="mesh for the oracle (default: the scene's own GT mesh)")
-    s.add_argument("--stereo", help="sgbm: the output folder of `eve3d stereo-render`")
-    sgbm = SgbmSettings()
-    s.add_argument("--sgm-mode", choices=list(SGM_MODES), default=sgbm.sgm_mode,
-                   help="sgbm: cost aggregation: hh = 8 directions in two passes (unbiased on slanted surfaces); "
-                        "hh4 = 4; 3way and sgbm = single pass (faster, less memory, biased on slopes)")
-    s.add_argument("--block-size", type=int, default=sgbm.block_size)
-    s.add_argument("--uniqueness", type=int, default=sgbm.uniqueness)
-    s.add_argument("--lr-threshold", type=float, default=sgbm.lr_threshold, help="left–right check tolerance in pixels")
-    s.add_argument("--min-texture", type=float, default=sgbm.min_texture,
-                   help="grey-level std (0-255) over the block below which a pixel is not confident")
-    s.add_argument("--wls", action="store_true",
-                   help="sgbm: WLS-filter the disparity (dense; confidence = the filter's confidence map)")
-    s.add_argument("--wls-lambda", type=float, default=sgbm.wls_lambda, help="WLS smoothness weight")
-    s.add_argument("--wls-sigma", type=float, default=sgbm.wls_sigma, help="WLS colour sensitivity")
-    check = MatchCheck()
-    s.add_argument("--ncc-threshold", type=float, default=check.ncc_threshold,
-                   help="sgbm/onnx: confident only where the photo and the right view warped back by the disparity "
-                        "have at least this NCC (0 = off)")
-    s.add_argument("--ncc-window", type=int, default=check.ncc_window, help="NCC window (px)")
-    s.add_argument("--range-margin", type=float, default=check.range_margin,
-                   help="not confident within this many px of either end of the disparity range searched")
-    s.add_argument("--mv-ncc-threshold", type=float, default=check.mv_ncc_threshold,
-                   help="sgbm/onnx: confident only where at least --mv-views of the --mv-neighbours best neighbours' "
-                        "photos, warped by the prior depth, have at least this NCC with the photo (0 = off)")
-    s.add_argument("--mv-views", type=int, default=check.mv_views)
-    s.add_argument("--mv-neighbours", type=int, default=check.mv_neighbours)
+    s.add_argument("--gt-mesh", help="oracle: the mesh (default: the scene's own GT mesh)")
+    s.add_argument("--stereo", help="sgbm, onnx: the output folder of `eve3d stereo-render`")
     s.add_argument("--no-preview", action="store_true")
-    s.set_defaults(func=_cmd_stereo_depth)
 
-    s = sub.add_parser("pretrain", help="short photometric 3DGS fit (Mini-Splatting style) → point_cloud.ply")
-    _add_training_options(s)
-    s.set_defaults(func=_cmd_pretrain)
 
-    s = sub.add_parser("joint", help="train a method's Gaussians and render its depth for meshing")
+def _add_training_parsers(sub) -> None:
     from eve3d.methods import methods
+    from eve3d.settings import JointSettings, PretrainSettings
 
+    s = _stage(sub, "pretrain", _cmd_pretrain, "short photometric 3DGS fit (Mini-Splatting style) → point_cloud.ply",
+               (PretrainSettings, "pretrain"))
+    s.add_argument("--scene", required=True, help="posed dataset folder")
+    s.add_argument("--out", required=True, help="output folder (holds the checkpoint a killed run resumes from)")
+    s = _stage(sub, "joint", _cmd_joint, "train a method's Gaussians and render its depth for meshing",
+               (JointSettings, "joint", (), ("method", "priors")))  # chosen by --method
     s.add_argument("--method", required=True, help="a trained method: " + ", ".join(
         n for n, m in methods().items() if m.trains) + ", or a variant the --config defines")
     s.add_argument("--priors", help="the stereo priors (results/SCENE/priors/BACKEND) of a method that uses them")
-    _add_training_options(s)
-    s.set_defaults(func=_cmd_joint)
+    s.add_argument("--scene", required=True, help="posed dataset folder")
+    s.add_argument("--out", required=True, help="output folder (holds the checkpoint a killed run resumes from)")
 
-    s = sub.add_parser("mesh", help="TSDF-fuse per-view depth maps into mesh.ply")
+
+def _add_mesh_parsers(sub) -> None:
+    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS
+    from eve3d.settings import EvalSettings, MeshSettings
+
+    s = _stage(sub, "mesh", _cmd_mesh, "TSDF-fuse per-view depth maps into mesh.ply", (MeshSettings, "mesh"))
     s.add_argument("--scene", required=True)
     s.add_argument("--depth", required=True, help="folder of {view}.npz depth maps")
     s.add_argument("--out", required=True, help="mesh file to write (.ply)")
     s.add_argument("--kind", choices=["object", "scene"], help="override the scene kind")
-    s.add_argument("--voxel", type=float)
-    s.add_argument("--coarsen", type=float, default=1.0)
-    s.add_argument("--trunc-factor", type=float, default=4.0)
-    s.add_argument("--depth-max", type=float)
-    s.add_argument("--min-confidence", type=float, default=MeshSettings.min_confidence)
-    s.add_argument("--weight-threshold", type=float, default=1.0)
-    s.add_argument("--largest-cluster", action=argparse.BooleanOptionalAction, default=None)
-    s.add_argument("--min-cluster-fraction", type=float, default=0.01)
-    s.set_defaults(func=_cmd_mesh)
-
-    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS
-    from eve3d.settings import EvalSettings
-
-    defaults = EvalSettings()
-    s = sub.add_parser("evaluate", help="a reconstruction vs ground truth → metrics.json",
-                       description="Protocols: " + "; ".join(f"{p.name}: {p.summary}" for p in PROTOCOLS.values()))
+    s = _stage(sub, "evaluate", _cmd_evaluate, "a reconstruction vs ground truth → metrics.json",
+               (EvalSettings, "evaluate"), (MeshSettings, "mesh", ("min_confidence",)))
+    s.description += " Protocols: " + "; ".join(f"{p.name}: {p.summary}" for p in PROTOCOLS.values())
     s.add_argument("--scene", required=True, help="dataset folder: cameras (visibility, alignment, masks, views)")
     s.add_argument("--mesh", help="the reconstructed mesh (protocols synthetic, dtu, tnt)")
     s.add_argument("--model", help="a trained point_cloud.ply (protocol nvs)")
@@ -397,40 +421,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--protocol", choices=list(PROTOCOLS),
                    help="default by dataset format: " + ", ".join(f"{k} → {v}" for k, v in DEFAULT_PROTOCOL.items()))
     s.add_argument("--gt", help="synthetic: the GT mesh; dtu: the stl…_total.ply point cloud")
-    s.add_argument("--tau", type=float, help="distance threshold; default: the protocol's rule")
-    s.add_argument("--tau-fraction", type=float, default=defaults.tau_fraction,
-                   help="synthetic: τ = this × the visible GT's bounding-box diagonal")
-    s.add_argument("--samples", type=int, default=defaults.samples, help="synthetic: surface samples per mesh")
-    s.add_argument("--min-views", type=int, default=defaults.min_views,
-                   help="synthetic: cameras that must see a GT point for it to count as visible")
     s.add_argument("--obs-mask", help="dtu: ObsMask{scan}_10.mat")
     s.add_argument("--plane", help="dtu: Plane{scan}.mat")
-    s.add_argument("--dtu-density", type=float, default=defaults.dtu_density)
-    s.add_argument("--dtu-max-dist", type=float, default=defaults.dtu_max_dist)
     s.add_argument("--depth", help="the depth maps the mesh was fused from: their median signed and absolute "
-                                   "relative error against --exact-depth are added to the metrics")
+                                   "relative error against --exact-depth (pixels of confidence ≥ mesh.min_confidence) "
+                                   "are added to the metrics")
     s.add_argument("--exact-depth", help="exact depth maps of the same views (results/SCENE/priors/oracle)")
-    s.add_argument("--min-confidence", type=float, default=MeshSettings.min_confidence,
-                   help="--depth pixels scored: confidence at least this (the mesh's mesh.min_confidence)")
     s.add_argument("--scene-name")
     s.add_argument("--method")
-    s.set_defaults(func=_cmd_evaluate)
-
-    s = sub.add_parser("summary", help="gather metrics.json files into a CSV and print the table")
-    s.add_argument("metrics", nargs="+")
-    s.add_argument("--out", required=True)
-    s.set_defaults(func=_cmd_summary)
-
-    _add_bench_parser(sub)
-    return p
 
 
 def _add_bench_parser(sub) -> None:
+    from eve3d.settings import RENDER_BACKENDS
+
     s = sub.add_parser("bench", help="speed and memory benchmarks (print a table)")
     what = s.add_subparsers(dest="benchmark", required=True)
     r = what.add_parser("rasterizer", help="forward/backward time and peak memory of one render")
     r.add_argument("--sizes", help="GAUSSIANSxWIDTHxHEIGHT,... (default 5000x160x120,20000x320x240,100000x640x480)")
-    r.add_argument("--backend", choices=["auto", "cpu", "torch", "gsplat"], default="auto")
+    r.add_argument("--backend", choices=RENDER_BACKENDS, default="auto")
     r.add_argument("--repeats", type=int, default=5, help="timed runs per size (median; one more warms up)")
     r.add_argument("--json", action="store_true", help="machine-readable output")
     r.set_defaults(func=_cmd_bench)

@@ -7,7 +7,9 @@ the user's config.
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -46,6 +48,8 @@ def _validator(schema: dict):
 def with_preset(user: dict, source: str = "config", preset_dir: Path = PRESETS) -> dict:
     """``user`` merged over its preset (``cpu`` unless it names one)."""
     preset_name = user.get("preset", "cpu")
+    if preset_name is None:  # a job's resolved sections (job_config)
+        return copy.deepcopy(user)
     preset_path = preset_dir / f"{preset_name}.yaml"
     if not preset_path.is_file():
         known = ", ".join(sorted(p.stem for p in preset_dir.glob("*.yaml")))
@@ -142,6 +146,7 @@ def load_config(path: str | Path) -> dict:
 
 
 TRAINING_SECTIONS = ("train", "pretrain", "joint")
+"""Sections merged per training stage: ``train`` under ``pretrain`` or ``joint``."""
 
 
 def load_mapping(spec: str, option: str) -> dict:
@@ -157,29 +162,44 @@ def load_mapping(spec: str, option: str) -> dict:
     return value
 
 
-def training_config(spec: str | None = None, overrides: list[str] = ()) -> dict:
-    """The ``train``, ``pretrain``, ``joint`` and ``variants`` sections for a training CLI: the preset
-    (``cpu`` unless the config names one), then ``spec`` (a workflow config file, or an
-    inline JSON/YAML mapping as the workflow passes it), then ``SECTION.KEY=VALUE``
-    overrides (values parsed as YAML)."""
+def job_config(spec: str | None = None, overrides: Sequence[str] = (), flags: Mapping[str, Any] | None = None) -> dict:
+    """The one route from configuration to a stage's job (``eve3d <stage>``), low → high:
+    ``spec`` (a workflow config file, or an inline YAML/JSON mapping: the workflow passes each
+    job the resolved sections it reads this way, with ``preset: null``) over its preset (``cpu``
+    unless it names one), then the ``SECTION.KEY=VALUE`` overrides (``--set``, values parsed
+    as YAML), then ``flags`` (the stage's own flags, by dotted key)."""
+    from eve3d.settings import SECTIONS
+
     config = with_preset(load_mapping(spec, "--config") if spec else {}, "--config")
+    known = (*TRAINING_SECTIONS, *SECTIONS, "variants")
+    parsed = []
     for item in overrides:
         key, sep, value = item.partition("=")
-        path = key.split(".")
-        if not sep or path[0] not in TRAINING_SECTIONS or len(path) < 2:
-            raise Eve3dError(f"--set {item!r}: expected SECTION.KEY=VALUE with SECTION one of {', '.join(TRAINING_SECTIONS)}")
-        node = config.setdefault(path[0], {})
-        for part in path[1:-1]:
-            node = node.setdefault(part, {})
-        node[path[-1]] = yaml.safe_load(value)
-    return {**{k: config.get(k) or {} for k in TRAINING_SECTIONS}, "variants": config.get("variants") or {}}
+        if not sep or key.split(".")[0] not in known or "." not in key:
+            raise Eve3dError(f"--set {item!r}: expected SECTION.KEY=VALUE with SECTION one of {', '.join(known)}")
+        parsed.append((key, yaml.safe_load(value)))
+    for key, value in parsed + list((flags or {}).items()):
+        *parents, leaf = key.split(".")
+        node = config
+        for part in parents:
+            if node.get(part) is None:
+                node[part] = {}
+            node = node[part]
+            if not isinstance(node, dict):
+                raise Eve3dError(f"--set {key}: {part} is not a section")
+        node[leaf] = value
+    return config
 
 
-def stage_settings(cls, section: str, config: dict, overrides: dict | None = None, **fixed):
-    """Settings of a training stage: ``train``, then ``section``, then ``overrides`` (a
-    method's settings), merged key by key, plus ``fixed``."""
+def stage_settings(cls: type, section: str, config: Mapping, overrides: dict | None = None, **fixed: Any) -> Any:
+    """A stage's settings from a config: its ``section`` (a training stage's over the shared
+    ``train`` section), then ``overrides`` (a method's settings) merged key by key, plus
+    ``fixed``; built strictly by ``cls`` (errors name the key path)."""
     from eve3d.settings import from_mapping
 
-    values = deep_merge(deep_merge(config.get("train") or {}, config.get(section) or {}), overrides or {})
+    training = section in TRAINING_SECTIONS[1:]
+    shared = config.get("train") or {} if training else {}
+    values = deep_merge(deep_merge(shared, config.get(section) or {}), overrides or {})
     values.update(fixed)
-    return from_mapping(cls, values, where=f"{section} (train + {section} sections)")
+    where = f"{section} (train + {section} sections)" if training else section
+    return from_mapping(cls, values, where=where)

@@ -1,18 +1,21 @@
 """Every stage's settings, declared once: each field with its default, its bounds and its
 documentation. Importable without torch, so that planning the workflow does not load it.
 
-A field's bounds live in its metadata (:func:`setting`). They are checked when a settings
-object is made, whichever way: :func:`from_mapping` (a config section, strict: an unknown
-key or a value of the wrong type is an error that names its full key path) or a direct
-call (tests, library use). Registries of names that settings choose from (rasterisers,
+A field's bounds live in its metadata (:func:`setting`), its documentation in the string
+under it (read by :func:`keys` for the CLI's flags and config/README.md's tables). Bounds are
+checked when a settings object is made, whichever way: :func:`from_mapping` (a config
+section, strict: an unknown key or a value of the wrong type is an error that names its full
+key path) or a direct call (tests, library use). Registries of names that settings choose from (rasterisers,
 SGM modes, baseline modes, matchers) are declared here and imported by the modules that
 implement them.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar
 
 from eve3d.scene import Camera, Eve3dError
@@ -133,19 +136,10 @@ def from_mapping(cls: type, values: Mapping, where: str) -> Any:
     return _made(cls, kwargs, where)
 
 
-def from_namespace(cls: type, args: Any, where: str) -> Any:
-    """``cls`` from parsed command-line arguments: the fields ``args`` holds (not None),
-    through :func:`from_mapping`; an error names the flag beside the key
-    (``evaluate.tau (--tau): expected a number > 0, got -1.0``)."""
-    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if getattr(args, f.name, None) is not None}
-    try:
-        return from_mapping(cls, values, where)
-    except Eve3dError as e:
-        key, sep, rest = str(e).partition(": ")
-        name = key.rsplit(".", 1)[-1]
-        if sep and name in values:
-            raise Eve3dError(f"{key} (--{name.replace('_', '-')}): {rest}") from None
-        raise
+def flag(name: str) -> str:
+    """The command-line flag of a settings field or a stage's input (``min_views`` →
+    ``--min-views``)."""
+    return "--" + name.replace("_", "-")
 
 
 def pick(cls: type, settings: Any) -> Any:
@@ -164,6 +158,60 @@ def _made(cls: type, kwargs: dict, where: str) -> Any:
         if section and message.startswith(section + ".") and where != section:
             message = where + message[len(section):]
         raise Eve3dError(message) from None
+
+
+@dataclass(frozen=True)
+class Key:
+    """One settings field as the CLI and the key tables of config/README.md present it."""
+
+    name: str
+    kind: str
+    """bool, int, float, str, tuple, dict or any (:func:`_kind`)."""
+    optional: bool
+    default: Any
+    bounds: dict
+    doc: str
+    """The field's docstring (its first sentence is the CLI help), or ""."""
+
+    @property
+    def expected(self) -> str:
+        return _expected(self.kind, self.bounds) + (" or null" if self.optional else "")
+
+
+@functools.cache
+def _field_docs() -> dict[tuple[str, str], str]:
+    """(class, field) → the string literal under the field in this module's source: the
+    field docstrings that Python itself drops."""
+    import ast
+
+    docs = {}
+    for node in ast.parse(Path(__file__).read_text()).body:
+        if isinstance(node, ast.ClassDef):
+            for a, b in zip(node.body, node.body[1:]):
+                if (isinstance(a, ast.AnnAssign) and isinstance(a.target, ast.Name) and isinstance(b, ast.Expr)
+                        and isinstance(b.value, ast.Constant) and isinstance(b.value.value, str)):
+                    docs[node.name, a.target.id] = " ".join(b.value.value.split())
+    return docs
+
+
+def keys(cls: type) -> list[Key]:
+    """The fields of a settings class (nested sections left out) with kind, default, bounds
+    and documentation; a field's docstring is looked up along the class's bases."""
+    docs = _field_docs()
+    out = []
+    for f in dataclasses.fields(cls):
+        if f.default is dataclasses.MISSING:
+            continue  # a nested section (default_factory)
+        kind, optional = _kind(str(f.type))
+        doc = next((docs[c.__name__, f.name] for c in cls.__mro__ if (c.__name__, f.name) in docs), "")
+        out.append(Key(f.name, kind, optional, f.default, dict(f.metadata), doc))
+    return out
+
+
+def sections_of(cls: type) -> dict[str, type]:
+    """The nested settings sections of ``cls`` (``lr``, ``densify``, ``onnx``) by field name."""
+    return {f.name: f.default_factory for f in dataclasses.fields(cls)
+            if isinstance(f.default_factory, type) and dataclasses.is_dataclass(f.default_factory)}
 
 
 class Checked:
@@ -185,9 +233,13 @@ class SyntheticSettings(Checked):
 
     SECTION: ClassVar[str] = "synthetic"
     views: int = setting(32, ge=2)
+    """Cameras of a generated scene."""
     width: int = setting(320, ge=16)
+    """Image width in pixels."""
     height: int = setting(240, ge=16)
+    """Image height in pixels."""
     seed: int = 0
+    """Seed of the texture noise and the cameras' random placement."""
     arc: float = setting(360.0, gt=0, le=360)
     """Azimuth range of the cameras in degrees (a DTU-like front arc for object scenes)."""
 
@@ -202,9 +254,11 @@ class SfmSettings(Checked):
     single_camera: bool = True
     """All images share one camera (one device, fixed zoom)."""
     max_image_size: int = setting(3200, ge=64)
+    """Longest image side fed to SIFT (larger images are downscaled for extraction)."""
     min_registered_fraction: float = setting(0.9, ge=0, le=1)
     """Fail when fewer than this fraction of the images are registered."""
     seed: int = 0
+    """Random seed of the mapper."""
     threads: int = setting(1, nonzero=True)
     """Threads for extraction, matching and mapping. 1 makes SfM bit-reproducible (pycolmap's
     multi-threaded matching and mapping are not: the worst camera moved by 0.5 % of the scene
@@ -220,12 +274,19 @@ class LearningRates(Checked):
 
     SECTION: ClassVar[str] = "train.lr"
     means: float = setting(1.6e-4, gt=0)
+    """Step of the centres at the start (× scene radius)."""
     means_final: float = setting(1.6e-6, gt=0)
+    """Step of the centres at the end (× scene radius; exponential decay)."""
     quats: float = setting(1e-3, ge=0)
+    """Step of the rotations."""
     log_scales: float = setting(5e-3, ge=0)
+    """Step of the log-scales."""
     logit_opacities: float = setting(5e-2, ge=0)
+    """Step of the opacity logits."""
     sh0: float = setting(2.5e-3, ge=0)
+    """Step of the base colour (SH degree 0)."""
     shN: float = setting(2.5e-3 / 20, ge=0)
+    """Step of the higher SH coefficients."""
 
 
 @dataclass
@@ -235,15 +296,25 @@ class DensifySettings(Checked):
 
     SECTION: ClassVar[str] = "train.densify"
     grow_grad2d: float = setting(0.0002, gt=0)
+    """Clone when the mean gradient of the 2D mean (NDC units) exceeds this."""
     grow_absgrad2d: float = setting(0.0008, gt=0)
+    """Split when the AbsGS absolute gradient exceeds this (with ``absgrad``)."""
     absgrad: bool = True
+    """Split by the absolute gradient (AbsGS, PGSR); ``3dgs`` uses the plain one."""
     grow_scale3d: float = setting(0.01, gt=0)
+    """Clone below, split above this largest scale (× scene radius)."""
     prune_opa: float = setting(0.005, ge=0, le=1)
+    """Prune below this opacity."""
     prune_scale3d: float = setting(0.1, gt=0)
+    """Prune above this largest scale (× scene radius; after the first opacity reset)."""
     prune_min_views: int = setting(0, ge=0)
+    """Prune Gaussians seen by fewer views (judged after two passes over the views); 0 = off."""
     refine_start: int = setting(500, ge=0)
+    """First step of densification."""
     refine_stop: int = setting(15_000, ge=0)
+    """Last step of densification."""
     refine_every: int = setting(100, ge=1)
+    """Steps between densifications."""
     reset_every: int = setting(3000, ge=0)
     """Opacity reset period; 0 = never (short CPU runs)."""
     max_gaussians: int = setting(3_000_000, ge=1)
@@ -258,6 +329,7 @@ class RenderSettings(Checked):
 
     SECTION: ClassVar[str] = "train"
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """RGB behind the Gaussians."""
     backend: str = setting("auto", choices=RENDER_BACKENDS)
     """Rasteriser (``RENDER_BACKENDS``)."""
     antialiased: bool = True
@@ -273,12 +345,15 @@ class TrainSettings(RenderSettings):
 
     SECTION: ClassVar[str] = "train"
     iterations: int = setting(30_000, ge=0)
+    """Optimisation steps."""
     resolution: float = setting(1.0, gt=0)
     """Image size factor for training (0.5 = half width and height)."""
     sh_degree: int = setting(3, ge=0, le=3)
+    """Spherical-harmonics degree of the colours."""
     sh_degree_interval: int = setting(1000, ge=1)
     """Raise the active SH degree by one every this many steps."""
     ssim_weight: float = setting(0.2, ge=0, le=1)
+    """L_rgb = (1 − w)·L1 + w·(1 − SSIM)."""
     init_thickness: float = setting(0.1, gt=0, le=1)
     """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
     are discs in the plane of their 8 nearest points, this thin along its normal (a
@@ -290,7 +365,9 @@ class TrainSettings(RenderSettings):
     device: str = "auto"
     """``auto`` = CUDA when present, else CPU."""
     seed: int = 0
+    """Seeds every random draw (view order, splits, NCC pixels)."""
     checkpoint_every: int = setting(1000, ge=0)
+    """Steps between checkpoints (a killed job resumes from the last); 0 = none."""
     holdout: int = setting(0, ge=0)
     """Hold out every ``holdout``-th view (index % holdout == 0) for evaluation; 0 = none."""
     previews: int = setting(3, ge=0)
@@ -309,6 +386,7 @@ class PretrainSettings(TrainSettings):
     reinit_points: int = setting(0, ge=0)
     """Points sampled at a re-initialisation; 0 = as many as there are Gaussians then."""
     simplify_at: tuple[int, ...] = (5000,)
+    """Steps at which only the highest-weight Gaussians are kept."""
     simplify_keep: float = setting(0.6, gt=0, le=1)
     """Fraction of Gaussians (highest blending weight first) a simplification keeps."""
     equalize: float = setting(3.0, ge=0)
@@ -336,21 +414,27 @@ class JointSettings(TrainSettings):
     scale_weight: float = setting(100.0, ge=0)
     """Flattening loss: weight × mean(min scale of the visible Gaussians)."""
     dn_weight: float = setting(0.015, ge=0)
+    """Weight of the depth–normal consistency loss (PGSR)."""
     dn_from: int = setting(7000, ge=0)
     """First step of the depth–normal consistency loss."""
     mv_from: int = setting(7000, ge=0)
     """First step of the multi-view losses."""
     geo_weight: float = setting(0.03, ge=0)
+    """Weight of the multi-view geometric loss (PGSR)."""
     ncc_weight: float = setting(0.15, ge=0)
+    """Weight of the multi-view NCC loss (PGSR)."""
     mv_threshold: float = setting(1.0, gt=0)
     """Pixels whose forward–backward reprojection error φ is this large (px) are left out."""
     ncc_patch: int = setting(7, ge=3)
+    """NCC patch size (px)."""
     ncc_pixels: int = setting(4096, ge=1)
     """Reference pixels per step whose patches enter the NCC loss."""
     neighbours: int = setting(4, ge=1)
+    """Neighbour views per view (DESIGN §3 score)."""
     exposure: bool = False
     """Learn a 3×4 colour transform per training image (PGSR's exposure compensation)."""
     exposure_lr: float = setting(1e-3, ge=0)
+    """Adam step of the exposure transforms."""
     init: str = setting("sparse", choices=("sparse", "priors"))
     """Initial Gaussians: ``sparse`` (the SfM points; random points without them) or
     ``priors`` (points back-projected from confident prior depths, Eve3D)."""
@@ -362,6 +446,7 @@ class JointSettings(TrainSettings):
     prior_weight: float = setting(0.05, ge=0)
     """λ_prior: |D_prior − D| + ``prior_normal_weight`` · (1 − N_prior·N) on confident pixels."""
     prior_normal_weight: float = setting(1.0, ge=0)
+    """Weight w of the normal term in L_prior."""
     prior_normal_span: int = setting(1, ge=1)
     """N_prior from central differences of the prior depth over ±span pixels (1 = adjacent
     pixels; wider averages out the per-pixel noise of a matcher like SGBM)."""
@@ -394,6 +479,7 @@ class BaselineSettings(Checked):
 
     SECTION: ClassVar[str] = "stereo"
     baseline: str = setting("disparity", choices=BASELINE_MODES)
+    """How each view's virtual baseline B is set: ``disparity`` = per view, for ``target_disparity`` at its median rendered depth Z, at most ``max_baseline`` × Z; ``radius`` = the paper's B = ``baseline_factor`` × scene radius for every view."""
     baseline_factor: float = setting(0.07, gt=0)
     """radius mode: B = factor × scene radius."""
     target_disparity: float = setting(0.08, gt=0)
@@ -421,9 +507,13 @@ class SgbmSettings(Checked):
     ``hh`` keeps two costs per pixel and disparity (W·H·D·4 bytes: 2.1 GB at 1080×1920 with
     256 disparities)."""
     block_size: int = setting(5, ge=1)
+    """SGBM block size b (P1 = 8·3·b², P2 = 32·3·b²)."""
     uniqueness: int = setting(10, ge=0)
+    """SGBM uniqueness ratio (%)."""
     speckle_window: int = setting(100, ge=0)
+    """SGBM speckle filter: largest connected region of similar disparity treated as noise (px; 0 = off)."""
     speckle_range: int = setting(2, ge=0)
+    """SGBM speckle filter: disparity variation within a connected region."""
     lr_threshold: float = setting(1.0, gt=0)
     """Left–right check: keep pixels whose two disparities differ by at most this (px)."""
     min_texture: float = setting(0.5, ge=0)
@@ -434,7 +524,9 @@ class SgbmSettings(Checked):
     """Edge-aware WLS filtering of the disparity (dense); the confidence becomes the filter's
     own confidence map / 255 (its left–right check, lowered near depth edges)."""
     wls_lambda: float = setting(8000.0, gt=0)
+    """WLS smoothness weight (OpenCV's default)."""
     wls_sigma: float = setting(1.5, gt=0)
+    """WLS colour sensitivity (OpenCV's default)."""
 
 
 @dataclass
@@ -447,6 +539,7 @@ class MatchCheck(Checked):
     """Confident only where the photo and the right view warped back by the disparity agree:
     their NCC over ``ncc_window``² pixels is at least this (0 = off)."""
     ncc_window: int = setting(7, ge=3)
+    """Window of both NCC checks in pixels (odd)."""
     range_margin: float = setting(1.0, ge=0)
     """Not confident within this many px of either end of the disparity range searched: a
     disparity pinned there is the matcher running out of range, not a match."""
@@ -456,7 +549,9 @@ class MatchCheck(Checked):
     the neighbour's photo warped by the prior depth (0 = off). Real photos on both sides,
     so it catches a depth the pretrained model got wrong, which the right view inherits."""
     mv_views: int = setting(1, ge=1)
+    """Neighbours that must agree (a view with fewer neighbours skips the check)."""
     mv_neighbours: int = setting(4, ge=1)
+    """Best neighbours tried (``eve3d.neighbours``)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -475,15 +570,19 @@ class OnnxSpec(Checked):
     model: str = ""
     """Path of the .onnx file."""
     left: str = "left"
+    """Name of the network's left-image input."""
     right: str = "right"
+    """Name of the right-image input."""
     output: str = "disp"
+    """Name of the disparity output."""
     layout: str = setting("NCHW", choices=("NCHW", "NHWC"))
     """Input layout, ``NCHW`` or ``NHWC`` (batch 1, RGB)."""
     scale: float = setting(255.0, gt=0)
-    """Pixel values are fed as image / 255 × scale (255 = 0..255, 1 = 0..1) ..."""
+    """Pixel values are fed as image / 255 × scale (255 = 0..255, 1 = 0..1), before ``mean`` and ``std``."""
     mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Per-channel mean subtracted from the fed values."""
     std: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    """... then normalised per channel: (value − mean) / std."""
+    """Per-channel divisor: the fed values are (image / 255 × scale − mean) / std."""
     size: tuple[int, int] | None = None
     """Fixed network input (height, width): images are resized to it, disparity rescaled."""
     divisor: int = setting(1, ge=1)

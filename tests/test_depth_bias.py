@@ -114,7 +114,7 @@ def plane_dataset(tmp_path_factory):
 def train_plane(dataset, out, **overrides):
     """``pgsr`` at the ``cpu`` preset, briefly (300 steps, its schedule scaled down); returns
     the accuracy of its rendered depth against the exact depth."""
-    from eve3d.config import stage_settings, training_config
+    from eve3d.config import job_config, stage_settings
     from eve3d.io import load_scene
     from eve3d.joint import train_joint
     from eve3d.settings import JointSettings
@@ -122,7 +122,7 @@ def train_plane(dataset, out, **overrides):
 
     brief = ["joint.iterations=300", "joint.dn_from=100", "joint.mv_from=100", "joint.checkpoint_every=0",
              "joint.densify.refine_stop=250", "joint.previews=0"]
-    config = training_config(None, brief + [f"train.{k}={v}" for k, v in overrides.items()])
+    config = job_config(None, brief + [f"train.{k}={v}" for k, v in overrides.items()])
     settings = stage_settings(JointSettings, "joint", config, overrides=methods()["pgsr"].settings, method="pgsr")
     scene = load_scene(dataset)
     threads = torch.get_num_threads()

@@ -109,3 +109,81 @@ def test_defaults_live_once_in_the_settings():
         resolve_config({"scenes": {"a": {"synthetic": {"kind": "object", "views": 1}}}})
     with pytest.raises(Eve3dError, match=r"scenes\.a\.evaluate\.tau: expected a number > 0, got 0"):
         resolve_config({"scenes": {"a": {"synthetic": {"kind": "object"}, "evaluate": {"tau": 0}}}})
+
+
+def test_config_readme_tables_are_generated_from_the_settings():
+    """config/README.md's key tables are what `python -m eve3d.keydoc` writes, and every key
+    has a docstring to fill its row and its CLI help."""
+    from eve3d.keydoc import README, TABLES, with_tables
+    from eve3d.settings import keys, sections_of
+
+    text = README.read_text()
+    assert with_tables(text) == text, "config/README.md is out of date: run `python -m eve3d.keydoc`"
+    for _, cls in TABLES:
+        for c in [cls, *sections_of(cls).values()]:
+            assert [k.name for k in keys(c) if not k.doc] == [], c.__name__
+    assert "| `mesh.voxel`" not in text and "| `voxel` | `null` | a number > 0 or null |" in text
+
+
+def test_every_stage_reads_settings_by_one_route(tmp_path):
+    """A stage's flags are generated from its settings class and are shorthands of --set; the
+    precedence is class default < preset < --config < --set < flag; `preset: null` (what the
+    workflow passes) merges no preset."""
+    from eve3d.cli import _config, _settings, build_parser
+    from eve3d.config import job_config
+
+    parser = build_parser()
+
+    def mesh(*argv):
+        a = parser.parse_args(["mesh", "--scene", "s", "--depth", "d", "--out", "m.ply", *argv])
+        return _settings(a, MeshSettings, "mesh")
+
+    assert mesh().coarsen == 5  # the cpu preset's
+    assert mesh("--config", '{"preset": null}').coarsen == MeshSettings().coarsen
+    config = tmp_path / "c.yaml"
+    config.write_text("preset: fast\nmesh: {trunc_factor: 3}\n")
+    assert (mesh("--config", str(config)).coarsen, mesh("--config", str(config)).trunc_factor) == (2, 3)
+    assert mesh("--config", str(config), "--set", "mesh.trunc_factor=2").trunc_factor == 2
+    assert mesh("--config", str(config), "--set", "mesh.trunc_factor=2", "--trunc-factor", "1.5").trunc_factor == 1.5
+    assert mesh("--no-largest-cluster").largest_cluster is False
+    with pytest.raises(Eve3dError, match=r"^mesh\.voxel \(--voxel\): expected a number > 0, got -1\.0$"):
+        mesh("--voxel", "-1")
+    with pytest.raises(Eve3dError, match=r"^--set 'mesh': expected SECTION\.KEY=VALUE"):
+        job_config(None, ["mesh"])
+    # every settings class a stage reads has its flags, each named as the key
+    helps = {name: p.format_help() for name, p in parser._subparsers._group_actions[0].choices.items()}
+    for stage, cls, skip in [("mesh", MeshSettings, ()), ("stereo-render", BaselineSettings, ()),
+                             ("pretrain", PretrainSettings, ()), ("joint", JointSettings, ("method", "priors"))]:
+        for f in dataclasses.fields(cls):
+            if f.default is not dataclasses.MISSING and f.name not in skip and not f.type.startswith("dict"):
+                assert f"--{f.name.replace('_', '-')}" in helps[stage], (stage, f.name)
+    # the render settings a model was trained with reach stereo-render
+    a = parser.parse_args(["stereo-render", "--scene", "s", "--model", "m", "--out", "o", "--no-antialiased",
+                           "--set", "train.backend=torch"])
+    rendered = _settings(a, PretrainSettings, "pretrain", _config(a))
+    assert (rendered.antialiased, rendered.backend) == (False, "torch")
+
+
+def test_the_workflow_passes_each_job_its_sections_as_one_argument(tmp_path):
+    """Every eve3d job of the default workflow gets its settings as one inline --config with
+    `preset: null` and the resolved sections; no settings flag is written by hand."""
+    import json
+    import shlex
+
+    r = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "-n", "-p", "--config",
+                        f"results={tmp_path / 'results'}"], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr[-3000:]
+    commands = [line for line in r.stdout.splitlines() if " -m eve3d " in line and " summary " not in line]
+    assert len(commands) >= 10
+    reads = {"synth": {"synthetic"}, "stereo-depth": {"stereo"}, "stereo-render": {"stereo", "pretrain"},
+             "pretrain": {"train", "pretrain"}, "joint": {"train", "joint"}, "mesh": {"mesh"},
+             "evaluate": {"evaluate", "mesh"}}
+    for line in commands:
+        argv = shlex.split(line.split(" -m eve3d ", 1)[1].split(" > ")[0])
+        assert argv.count("--config") == 1, line
+        job = json.loads(argv[argv.index("--config") + 1])
+        assert job.pop("preset", "missing") is None and set(job) - {"variants"} == reads[argv[0]], line
+        flags = [x for x in argv if x.startswith("--")]
+        assert set(flags) <= {"--config", "--scene", "--out", "--model", "--depth", "--mesh", "--gt", "--gt-mesh",
+                              "--stereo", "--priors", "--method", "--backend", "--protocol", "--exact-depth",
+                              "--scene-name", "--kind"}, line

@@ -18,12 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eve3d.scene import Eve3dError, Scene
-from eve3d.settings import EvalSettings
-
-
-def cli_flag(name: str) -> str:
-    """The ``eve3d evaluate`` flag of an :class:`EvalSettings` or :class:`EvalInputs` field."""
-    return "--" + name.replace("_", "-")
+from eve3d.settings import EvalSettings, flag
 
 
 @dataclass
@@ -67,7 +62,7 @@ class Protocol:
     def run(self, inputs: EvalInputs) -> dict:
         missing = [name for name in self.config_inputs if getattr(inputs, name) is None]
         if missing:
-            flags = ", ".join(map(cli_flag, missing))
+            flags = ", ".join(map(flag, missing))
             raise Eve3dError(f"the {self.name} protocol needs {', '.join(missing)} (eve3d evaluate {flags})")
         fmt = inputs.scene.extras.get("format")
         if self.formats and fmt not in self.formats:

@@ -8,10 +8,9 @@ from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
 from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_value, stage_settings
-from eve3d.evaluate import cli_flag
 from eve3d.io.loader import has_poses
 from eve3d.scene import Eve3dError
-from eve3d.settings import BaselineSettings, JointSettings, MatchCheck, PretrainSettings
+from eve3d.settings import JointSettings, PretrainSettings, RenderSettings, flag, pick
 from eve3d.stereo import TONE_FILE
 
 try:
@@ -142,39 +141,39 @@ def stereo_depth_inputs(wildcards):
     return inputs
 
 
-def cli_flags(settings, section):
-    """The flags of a settings dataclass's fields (named as the config keys) from a config section."""
-    return " ".join(f"{cli_flag(f.name)} {section[f.name]}" for f in dataclasses.fields(settings))
+def job_config(*sections, **values):
+    """The one route from the config to a job: the resolved sections it reads, as one inline
+    JSON --config (`preset: null`: they are merged and filled already). Snakemake reruns a
+    job when this changes, so a setting reruns exactly the jobs that read its section."""
+    job = {"preset": None, **{name: config[name] for name in sections}, **values}
+    return shlex.quote(json.dumps(job, sort_keys=True))
+
+
+def training_job(stage, scene=None, method=None):
+    """A training stage's job config: `train` and the stage's section (the scene's protocol
+    adds what it asks of the joint stage: nvs holds views out) and the config's variants
+    this method starts from (a variant's settings rerun that variant only)."""
+    section = dict(config[stage])
+    if stage == "joint" and scene is not None:
+        section.update(PROTOCOL[scene].joint_settings)
+    chain = {}  # the config's variants this method starts from, itself first
+    while method in config["variants"] and method not in chain:
+        chain[method] = config["variants"][method]
+        method = chain[method].get("method", method)
+    return job_config("train", **{stage: section}, **({"variants": chain} if chain else {}))
+
+
+def render_job():
+    """stereo-render's job config: the `stereo` section, and the render settings the pretrain
+    trained with (the right views are rasterised the same way)."""
+    rendering = pick(RenderSettings, stage_settings(PretrainSettings, "pretrain", config))
+    return job_config("stereo", pretrain=dataclasses.asdict(rendering))
 
 
 def stereo_depth_args(wildcards, input):
     if wildcards.backend == "oracle":
         return f"--gt-mesh {gt_mesh(wildcards)}"
-    s = config["stereo"]
-    check = " " + cli_flags(MatchCheck, s)
-    if wildcards.backend == "onnx":
-        return f"--stereo {input.stereo} --onnx {shlex.quote(json.dumps(s['onnx']))}" + check
-    return (f"--stereo {input.stereo}{check} --sgm-mode {s['sgm_mode']} --block-size {s['block_size']} --uniqueness {s['uniqueness']}"
-            f" --lr-threshold {s['lr_threshold']} --min-texture {s['min_texture']}"
-            + (f" --wls --wls-lambda {s['wls_lambda']} --wls-sigma {s['wls_sigma']}" if s["wls"] else ""))
-
-
-def training_config(stage, scene=None, method=None):
-    """What a training stage's job needs of the config, inline: a change reruns that stage
-    only (a joint setting does not rerun pretrain and the stereo stages after it; a
-    variant's settings rerun that variant only). The scene's protocol adds what it asks of
-    the joint stage (nvs: held-out views)."""
-    section = dict(config[stage])
-    if stage == "joint" and scene is not None:
-        section.update(PROTOCOL[scene].joint_settings)
-    job = {"preset": config["preset"], "train": config["train"], stage: section}
-    chain = {}  # the config's variants this method starts from, itself first
-    while method in config["variants"] and method not in chain:
-        chain[method] = config["variants"][method]
-        method = chain[method].get("method", method)
-    if chain:
-        job["variants"] = chain
-    return shlex.quote(json.dumps(job, sort_keys=True))
+    return f"--stereo {input.stereo}"
 
 
 def metrics_files():
@@ -189,19 +188,8 @@ def pretrain_metrics():
 
 
 def mesh_args(wildcards):
-    m = config["mesh"]
-    args = [f"--coarsen {m['coarsen']}", f"--trunc-factor {m['trunc_factor']}",
-            f"--min-confidence {m['min_confidence']}", f"--weight-threshold {m['weight_threshold']}",
-            f"--min-cluster-fraction {m['min_cluster_fraction']}"]
-    if m["voxel"] is not None:
-        args.append(f"--voxel {m['voxel']}")
-    if m["depth_max"] is not None:
-        args.append(f"--depth-max {m['depth_max']}")
-    if m["largest_cluster"] is not None:
-        args.append("--largest-cluster" if m["largest_cluster"] else "--no-largest-cluster")
-    if "kind" in scene_config(wildcards.scene):
-        args.append(f"--kind {scene_config(wildcards.scene)['kind']}")
-    return " ".join(args)
+    kind = scene_config(wildcards.scene).get("kind")
+    return "--config " + job_config("mesh") + (f" --kind {kind}" if kind else "")
 
 
 def scores_depth(scene):
@@ -232,15 +220,12 @@ def evaluate_settings(scene):
 
 
 def evaluate_args(wildcards, input):
-    """The protocol, its inputs, and every `evaluate` key given in the config as the CLI
-    flag of the same name (the defaults live in eve3d.settings.EvalSettings)."""
+    """The protocol, its inputs, and the job config: the `evaluate` section with the scene's
+    own keys over it, and `mesh` (the depth maps are scored where the mesh fused them)."""
     protocol = PROTOCOL[wildcards.scene]
     args = [f"--protocol {protocol.name}", f"--{protocol.scores} {input.reconstruction}"]
     for name, key in protocol.config_inputs.items():  # a generated GT mesh lies inside its dataset folder
-        args.append(f"{cli_flag(name)} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
-    args += [f"{cli_flag(key)} {value}" for key, value in evaluate_settings(wildcards.scene).items()
-             if value is not None]
+        args.append(f"{flag(name)} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
     if scores_depth(wildcards.scene):
-        args.append(f"--depth {input.depth} --exact-depth {input.exact_depth}"
-                    f" --min-confidence {config['mesh']['min_confidence']}")
-    return " ".join(args)
+        args.append(f"--depth {input.depth} --exact-depth {input.exact_depth}")
+    return " ".join(args + ["--config", job_config("mesh", evaluate=evaluate_settings(wildcards.scene))])

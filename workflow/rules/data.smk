@@ -2,9 +2,10 @@
 
 
 def synth_args(wildcards):
-    params = {**config["synthetic"], **scene_config(wildcards.scene)["synthetic"]}
-    return (f"{params['kind']} --views {params['views']} --width {params['width']} --height {params['height']} "
-            f"--seed {params['seed']} --arc {params['arc']}")
+    """The kind, and the `synthetic` section with the scene's own keys over it."""
+    own = dict(scene_config(wildcards.scene)["synthetic"])
+    kind = own.pop("kind")
+    return f"{kind} --config " + job_config(synthetic={**config["synthetic"], **own})
 
 
 rule synth:
@@ -26,15 +27,11 @@ rule sfm:
     output:
         directory(f"{RESULTS}/{{scene}}/sfm"),
     params:
-        s=lambda wc: config["sfm"],
-        per_image=lambda wc: "" if config["sfm"]["single_camera"] else " --per-image-camera",
+        config=lambda wc: job_config("sfm"),
     log:
         f"{RESULTS}/logs/{{scene}}/sfm.log",
     threads: lambda wc: config["sfm"]["threads"] if config["sfm"]["threads"] > 0 else workflow.cores
     conda:
         CONDA_ENV
     shell:
-        "{EVE3D} sfm {input} {output} --matcher {params.s[matcher]} --camera-model {params.s[camera_model]}"
-        " --max-image-size {params.s[max_image_size]} --min-registered-fraction {params.s[min_registered_fraction]}"
-        " --seed {params.s[seed]} --threads {params.s[threads]}"
-        "{params.per_image} > {log} 2>&1"
+        "{EVE3D} sfm {input} {output} --config {params.config} > {log} 2>&1"

@@ -10,7 +10,7 @@ rule stereo_render:
     output:
         directory(f"{RESULTS}/{{scene}}/stereo"),
     params:
-        baseline=lambda wc: cli_flags(BaselineSettings, config["stereo"]),
+        config=lambda wc: render_job(),
     log:
         f"{RESULTS}/logs/{{scene}}/stereo_render.log",
     benchmark:
@@ -19,7 +19,7 @@ rule stereo_render:
         CONDA_ENV
     shell:
         "{EVE3D} stereo-render --scene {input.scene} --model {input.model} --out {output}"
-        " {params.baseline} > {log} 2>&1"
+        " --config {params.config} > {log} 2>&1"
 
 
 rule stereo_depth:
@@ -31,6 +31,7 @@ rule stereo_depth:
         backend="oracle|sgbm|onnx",
     params:
         args=stereo_depth_args,
+        config=lambda wc: job_config("stereo"),
     log:
         f"{RESULTS}/logs/{{scene}}/stereo_depth_{{backend}}.log",
     benchmark:
@@ -39,4 +40,5 @@ rule stereo_depth:
         CONDA_ENV
     shell:
         "{EVE3D} stereo-depth --backend {wildcards.backend} --scene {input.scene} --out {output} {params.args}"
+        " --config {params.config}"
         " > {log} 2>&1"

@@ -10,7 +10,7 @@ rule pretrain:
         metrics=f"{RESULTS}/{{scene}}/pretrain/metrics.json",
         tone=f"{RESULTS}/{{scene}}/pretrain/{TONE_FILE}",
     params:
-        config=lambda wc: training_config("pretrain"),
+        config=lambda wc: training_job("pretrain"),
     log:
         f"{RESULTS}/logs/{{scene}}/pretrain.log",
     benchmark:
@@ -33,7 +33,7 @@ rule joint:
     wildcard_constraints:
         method="|".join(map(re.escape, TRAINED)),
     params:
-        config=lambda wc: training_config("joint", wc.scene, wc.method),
+        config=lambda wc: training_job("joint", wc.scene, wc.method),
         priors=lambda wc, input: f"--priors {input.priors}" if "priors" in input.keys() else "",
     log:
         f"{RESULTS}/logs/{{scene}}/joint_{{method}}.log",
