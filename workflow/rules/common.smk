@@ -182,10 +182,10 @@ def metrics_files():
 
 
 def pretrain_metrics():
-    """Held-out view metrics of the pretrain stage, for scenes where a method trains or uses
-    stereo priors (rendered by the pretrained model)."""
+    """The pretrain stage's records (held-out view metrics), for scenes where a method
+    trains or uses stereo priors (rendered by the pretrained model)."""
     users = {name for name, m in METHOD.items() if m.trains or m.needs_priors}
-    return [f"{RESULTS}/{s}/pretrain/metrics.json" for s in SCENES if set(scene_methods(s)) & users]
+    return [f"{RESULTS}/{s}/pretrain/train_metrics.json" for s in SCENES if set(scene_methods(s)) & users]
 
 
 def mesh_args(wildcards):

@@ -7,7 +7,7 @@ rule pretrain:
         posed_dataset,
     output:
         model=f"{RESULTS}/{{scene}}/pretrain/point_cloud.ply",
-        metrics=f"{RESULTS}/{{scene}}/pretrain/metrics.json",
+        metrics=f"{RESULTS}/{{scene}}/pretrain/train_metrics.json",
         tone=f"{RESULTS}/{{scene}}/pretrain/{TONE_FILE}",
     params:
         config=lambda wc: training_config("pretrain"),
