@@ -212,13 +212,14 @@ def _cmd_bench_methods(a: argparse.Namespace) -> None:
 
     from eve3d import bench
     from eve3d.config import REPO, load_config
+    from eve3d.layout import Layout
 
     config = load_config(a.config)
     if not a.report_only:
         cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--configfile", a.config,
                "--replace-workflow-config", f"-c{a.cores}", "--quiet", "rules", "progress"]
         if subprocess.run(cmd).returncode != 0:
-            raise Eve3dError(f"the workflow of {a.config} failed (its logs: {config['results']}/logs/)")
+            raise Eve3dError(f"the workflow of {a.config} failed (its logs: {Layout(config['results']).logs()}/)")
     report = bench.methods_report(config)
     print(json.dumps(report, indent=2) if a.json else bench.format_methods_report(report))
 
