@@ -12,5 +12,5 @@ include: "workflow/rules/evaluate.smk"
 
 rule all:
     input:
-        f"{RESULTS}/summary.csv",
+        LAYOUT.summary(),
     default_target: True

@@ -303,35 +303,33 @@ def methods_report(config: dict) -> dict:
     scene), the means over scenes, and per scene the depth maps' accuracy against the oracle
     depth: D* (``priors/{backend}``), every learnable method's final D̂ and every trained
     method's rendered depth D (the maps its mesh fuses)."""
-    from pathlib import Path
-
+    from eve3d.layout import Layout, job_name
     from eve3d.methods import methods
 
-    results, backend = Path(config["results"]), config["stereo"]["backend"]
+    layout, backend = Layout(config["results"]), config["stereo"]["backend"]
     known = methods(config.get("variants"))
     rows, shared, priors = [], {}, []
     for scene, sc in config["scenes"].items():
-        bench = results / "benchmarks" / scene
         for name in sc.get("methods", config["methods"]):
-            path = results / scene / name / "metrics.json"
+            path = layout.metrics(scene, name)
             if not path.is_file():
                 continue
             m = json.loads(path.read_text())
-            stages = [bench / f"mesh_{name}.tsv"] + ([bench / f"joint_{name}.tsv"] if known[name].trains else [])
+            stages = [layout.benchmark(scene, "mesh", name)] + (
+                [layout.benchmark(scene, "joint", name)] if known[name].trains else [])
             times = [_stage_seconds(p) for p in stages]
             rows.append({"scene": scene, "method": name, **{k: m.get(k) for k in (
                 "chamfer", "precision", "recall", "fscore")},
                 "seconds": None if None in times else sum(times)})
-        shared[scene] = {stage: _stage_seconds(bench / f"{stage}.tsv")
-                         for stage in ("pretrain", "stereo_render", f"stereo_depth_{backend}")}
-        oracle = results / scene / "priors" / "oracle"
+        shared[scene] = {job_name(*job): _stage_seconds(layout.benchmark(scene, *job))
+                         for job in (("pretrain",), ("stereo_render",), ("stereo_depth", backend))}
+        oracle = layout.priors(scene, "oracle")
         if oracle.is_dir():
-            star = results / scene / "priors" / backend
+            star = layout.priors(scene, backend)
             if star.is_dir():
                 priors.append({**prior_accuracy(star, oracle, scene), "priors": f"D* ({backend})"})
             for name in sc.get("methods", config["methods"]):
-                for folder, what in (("priors", "D̂"), ("depth", "D")):
-                    maps = results / scene / name / folder
+                for maps, what in ((layout.learned_priors(scene, name), "D̂"), (layout.depth(scene, name), "D")):
                     if maps.is_dir():
                         priors.append({**prior_accuracy(maps, oracle, scene), "priors": f"{what} of {name}"})
     means = []

@@ -169,8 +169,10 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     if "tau" in metrics:
         print(f"tau = {metrics['tau']:.5g} ({metrics['tau_rule']})")
     metrics.update({"scene": a.scene_name, "method": a.method} if a.scene_name else {})
+    from eve3d.layout import EVALUATION, RECORD
+
     with atomic_path(Path(a.out)) as tmp:
-        tmp.write_text(json.dumps(metrics, indent=2))
+        tmp.write_text(json.dumps({RECORD: EVALUATION, **metrics}, indent=2))
     print(format_table([metrics]))
 
 
@@ -221,13 +223,14 @@ def _cmd_bench_methods(a: argparse.Namespace) -> None:
 
     from eve3d import bench
     from eve3d.config import REPO, load_config
+    from eve3d.layout import Layout
 
     config = load_config(a.config)
     if not a.report_only:
         cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--configfile", a.config,
                "--replace-workflow-config", f"-c{a.cores}", "--quiet", "rules", "progress"]
         if subprocess.run(cmd).returncode != 0:
-            raise Eve3dError(f"the workflow of {a.config} failed (its logs: {config['results']}/logs/)")
+            raise Eve3dError(f"the workflow of {a.config} failed (its logs: {Layout(config['results']).logs()}/)")
     report = bench.methods_report(config)
     print(json.dumps(report, indent=2) if a.json else bench.format_methods_report(report))
 
@@ -248,18 +251,26 @@ VIEW_COLUMNS = ("scene", "stage", "views", "psnr", "ssim")
 
 
 def _cmd_summary(a: argparse.Namespace) -> None:
+    from eve3d.layout import EVALUATION, METRICS_FILE, RECORD, TRAIN_METRICS_FILE, TRAINING, locate
+
     rows, view_rows = [], []
     for path in map(Path, a.metrics):
         try:
             m = json.loads(path.read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise Eve3dError(f"{path}: cannot read metrics ({e})") from None
-        if "held_out" in m:  # a training stage's novel-view metrics (pretrain/metrics.json)
-            view_rows.append({"scene": path.parent.parent.name, "stage": path.parent.name, **m["held_out"]})
+        if not isinstance(m, dict) or m.get(RECORD) not in (EVALUATION, TRAINING):
+            found = f"{RECORD!r} is {m[RECORD]!r}" if isinstance(m, dict) and RECORD in m else f"no {RECORD!r} field"
+            raise Eve3dError(f"{path}: {found}; a metrics record says what it holds: {RECORD!r}: {EVALUATION!r} "
+                             f"({METRICS_FILE}, written by eve3d evaluate) or {TRAINING!r} ({TRAIN_METRICS_FILE}, "
+                             f"written by pretrain and joint); rerun the stage that wrote it (snakemake --forcerun evaluate)")
+        record = m[RECORD]
+        scene, stage = locate(path)  # names the row when the record does not
+        if record == TRAINING:  # a training stage's novel-view metrics
+            view_rows.append({"scene": scene, "stage": stage, **m["held_out"]})
             continue
-        # results/{scene}/{method}/metrics.json names the row when the file does not.
-        m.setdefault("scene", path.parent.parent.name)
-        m.setdefault("method", path.parent.name)
+        m.setdefault("scene", scene)
+        m.setdefault("method", stage)
         rows.append(m)
     rows.sort(key=lambda r: (r["scene"], r["method"]))
     out = Path(a.out)

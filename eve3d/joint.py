@@ -9,7 +9,7 @@ multi-view parts off and the plain split it is 3DGS, meshed from the expected de
 Σ w z / Σ w.
 
 Writes ``point_cloud.ply``, ``depth/{view}.npz`` (depth, confidence = rendered alpha,
-camera-space normal; at the dataset's full resolution, with PNG previews), ``metrics.json``
+camera-space normal; at the dataset's full resolution, with PNG previews), ``train_metrics.json``
 and ``previews/``.
 """
 from __future__ import annotations
@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from eve3d.fileio import atomic_dir, atomic_path, write_image
 from eve3d.gaussians import GaussianModel
+from eve3d.layout import RECORD, TRAIN_METRICS_FILE, TRAINING
 from eve3d.losses import (depth_normal_loss, depth_to_normal, depth_to_points, forward_backward_error, geometric_loss,
                           ncc_loss, rgb_loss)
 from eve3d.maps import save_maps
@@ -256,10 +257,10 @@ def train_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
         export_priors(trainer, scene, prior, out_dir / "priors", depth_kind)
     trainer.model.save_ply(out_dir / "point_cloud.ply")
     export_depths(trainer, scene, out_dir / "depth", depth_kind)
-    metrics = {"method": s.method, "train": trainer.evaluate(trainer.train_ids),
+    metrics = {RECORD: TRAINING, "method": s.method, "train": trainer.evaluate(trainer.train_ids),
                "held_out": trainer.evaluate(trainer.test_ids), "gaussians": len(trainer.model),
                "depth": depth_kind, "settings": asdict(s)}
-    with atomic_path(out_dir / "train_metrics.json") as tmp:
+    with atomic_path(out_dir / TRAIN_METRICS_FILE) as tmp:
         tmp.write_text(json.dumps(metrics, indent=2, default=str))
     trainer.write_previews(out_dir / "previews", depth=depth_kind)
     trainer.finish()

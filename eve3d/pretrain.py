@@ -9,7 +9,7 @@ the Gaussians that carry the most blending weight over the training views are ke
 (Mini-Splatting's importance-based simplification). The photos are fitted through one
 contrast-limited equalisation curve of the whole scene (``equalize``), so that the right
 views it renders carry the faint texture a matcher needs. Writes ``point_cloud.ply``
-(standard 3DGS PLY), ``tone_curve.json`` (that curve), ``metrics.json`` (PSNR/SSIM of the
+(standard 3DGS PLY), ``tone_curve.json`` (that curve), ``train_metrics.json`` (PSNR/SSIM of the
 held-out views, against the equalised photos) and PNG previews.
 """
 from __future__ import annotations
@@ -25,6 +25,7 @@ import torch
 from eve3d.densify import remove
 from eve3d.fileio import atomic_path
 from eve3d.gaussians import GaussianModel
+from eve3d.layout import RECORD, TRAIN_METRICS_FILE, TRAINING
 from eve3d.render import render
 from eve3d.scene import Scene
 from eve3d.stereo import TONE_FILE, scene_tone_curve
@@ -67,7 +68,7 @@ def blend_weights(trainer: Trainer) -> torch.Tensor:
 
 
 def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
-    """Run the stage; returns the held-out metrics (also written to ``metrics.json``)."""
+    """Run the stage; returns the held-out metrics (also written to ``train_metrics.json``)."""
     s = settings
     out_dir = Path(out_dir)
     tone = scene_tone_curve(scene, s.equalize)
@@ -98,10 +99,10 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     trainer.model.save_ply(out_dir / "point_cloud.ply")
     with atomic_path(out_dir / TONE_FILE) as tmp:
         tmp.write_text(json.dumps(tone.tolist()))
-    metrics = {"held_out": trainer.evaluate(trainer.test_ids), "train": trainer.evaluate(trainer.train_ids),
+    metrics = {RECORD: TRAINING, "held_out": trainer.evaluate(trainer.test_ids), "train": trainer.evaluate(trainer.train_ids),
                "gaussians": len(trainer.model), "iterations": s.iterations, "resolution": s.resolution,
                "settings": asdict(s)}
-    with atomic_path(out_dir / "metrics.json") as tmp:
+    with atomic_path(out_dir / TRAIN_METRICS_FILE) as tmp:
         tmp.write_text(json.dumps(metrics, indent=2, default=str))
     trainer.write_previews(out_dir / "previews", depth="depth_expected")
     trainer.finish()

@@ -17,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from eve3d.fileio import atomic_dir, read_image, write_image
+from eve3d.layout import TONE_FILE  # written by the pretrain beside its PLY; read here
 from eve3d.maps import save_maps
 from eve3d.neighbours import select_neighbours
 from eve3d.scene import Camera, Eve3dError, Scene
@@ -118,8 +119,6 @@ def local_std(image: np.ndarray, size: int) -> np.ndarray:
 
 
 PAIRS_FILE = "pairs.json"
-TONE_FILE = "tone_curve.json"
-"""Written by the pretrain beside its PLY: the (256,) curve its photos were fitted through."""
 
 
 def margin_camera(cam: Camera, margin: int) -> Camera:

@@ -11,6 +11,7 @@ import yaml
 
 from eve3d.io import load_scene
 from eve3d.io.colmap import write_colmap
+from eve3d.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout
 from eve3d.synth import generate
 from tests.conftest import REPO, run_cli
 
@@ -76,9 +77,10 @@ def test_tiny_training_run(tmp_path):
                        joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "prior_from": 5, "joint_from": 20,
                               "init_prior_points": 3000, "densify": short})
     results = tmp_path / "results"
+    layout = Layout(results)
     r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
-    rows = list(csv.DictReader(open(results / "summary.csv")))
+    rows = list(csv.DictReader(open(layout.summary())))
     assert [(row["scene"], row["method"]) for row in rows] == [
         ("tiny", "3dgs"), ("tiny", "eve3d"), ("tiny", "pgsr"), ("tiny", "stereo-tsdf"), ("tiny-nvs", "3dgs")]
     assert all(0 < float(row["fscore"]) <= 1 for row in rows[:4])
@@ -87,8 +89,12 @@ def test_tiny_training_run(tmp_path):
     assert rows[4]["depth_signed_error"] == ""
     rows = [row for row in rows if row["method"] != "eve3d"]
     assert (results / "tiny/eve3d/priors/000.npz").exists() and (results / "tiny/eve3d/priors/000.compare.png").exists()
-    nvs = json.loads((results / "tiny-nvs/3dgs/metrics.json").read_text())
-    trained = json.loads((results / "tiny-nvs/3dgs/train_metrics.json").read_text())
+    nvs = json.loads(layout.metrics("tiny-nvs", "3dgs").read_text())
+    trained = json.loads(layout.train_metrics("tiny-nvs", "3dgs").read_text())
+    pretrained = json.loads(layout.train_metrics("tiny", PRETRAIN).read_text())
+    # metrics.json holds an evaluation, train_metrics.json a training stage's record, and each says so
+    assert nvs[RECORD] == EVALUATION and trained[RECORD] == TRAINING and pretrained[RECORD] == TRAINING
+    assert not (layout.pretrain("tiny") / "metrics.json").exists()
     assert trained["settings"]["holdout"] == 8 and nvs["views"] == 2  # views 0 and 8 of 12
     # The protocol renders the saved model: it agrees with the trainer's own held-out score.
     assert nvs["psnr"] == pytest.approx(trained["held_out"]["psnr"], abs=1e-3) and float(rows[3]["psnr"]) > 8
@@ -100,7 +106,7 @@ def test_tiny_training_run(tmp_path):
     assert views[0]["stage"] == "pretrain" and int(views[0]["views"]) == 2
     assert float(views[0]["psnr"]) > 15
     assert (results / "tiny/stereo/right/000.png").exists() and (results / "tiny/priors/sgbm/000.npz").exists()
-    tone = json.loads((results / "tiny/pretrain/tone_curve.json").read_text())  # the photos are matched through it
+    tone = json.loads(layout.tone_curve("tiny").read_text())  # the photos are matched through it
     assert len(tone) == 256 and json.loads((results / "tiny/stereo/pairs.json").read_text())["tone_curve"] == tone
     for method in ("3dgs", "pgsr", "eve3d"):
         assert (results / f"tiny/{method}/depth/000.npz").exists()
@@ -113,7 +119,7 @@ def test_tiny_run_then_rerun_one_stage(tmp_path):
     results = tmp_path / "results"
     r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
-    rows = list(csv.DictReader(open(results / "summary.csv")))
+    rows = list(csv.DictReader(open(Layout(results).summary())))
     assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "oracle")]
     assert float(rows[0]["fscore"]) > 0.5
     assert float(rows[0]["depth_signed_error"]) == 0 and float(rows[0]["depth_error"]) == 0  # fused the exact depth

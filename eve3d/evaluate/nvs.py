@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 
 from eve3d.evaluate import PROTOCOLS, EvalInputs
+from eve3d.layout import TRAIN_METRICS_FILE
 from eve3d.scene import Eve3dError
 
 RENDER_KEYS = ("resolution", "background", "antialiased", "backend", "device")
@@ -25,7 +26,7 @@ def evaluate_views(inputs: EvalInputs) -> dict:
 
     holdout = PROTOCOLS["nvs"].joint_settings["holdout"]
     model_path = inputs.reconstruction
-    record = model_path.parent / "train_metrics.json"
+    record = model_path.parent / TRAIN_METRICS_FILE
     try:
         trained = json.loads(record.read_text())["settings"]
     except (OSError, ValueError, KeyError) as e:

@@ -9,9 +9,9 @@ from pathlib import Path
 sys.path.insert(0, workflow.basedir)
 from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_value, stage_settings
 from eve3d.io.loader import has_poses
+from eve3d.layout import PRETRAIN, Layout
 from eve3d.scene import Eve3dError
 from eve3d.settings import JointSettings, PretrainSettings, RenderSettings, flag, pick
-from eve3d.stereo import TONE_FILE
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")
@@ -20,7 +20,7 @@ except Eve3dError as e:
 config.clear()
 config.update(_resolved)
 
-RESULTS = config["results"]
+LAYOUT = Layout(config["results"])  # every path under the results folder (eve3d/layout.py)
 SCENES = list(config["scenes"])
 from eve3d.methods import methods
 
@@ -75,7 +75,7 @@ def scene_config(scene):
 def raw_dataset(wildcards):
     """The dataset as the user brings it (generated for synthetic scenes)."""
     sc = scene_config(wildcards.scene)
-    return f"{RESULTS}/{wildcards.scene}/input" if "synthetic" in sc else sc["path"]
+    return LAYOUT.input(wildcards.scene) if "synthetic" in sc else sc["path"]
 
 
 def needs_sfm(scene):
@@ -88,7 +88,7 @@ def needs_sfm(scene):
 def posed_dataset(wildcards):
     """The dataset with PINHOLE poses: the input itself, or the SfM stage's output."""
     if needs_sfm(wildcards.scene):
-        return f"{RESULTS}/{wildcards.scene}/sfm"
+        return LAYOUT.sfm(wildcards.scene)
     return raw_dataset(wildcards)
 
 
@@ -98,7 +98,7 @@ def gt_mesh(wildcards):
     if "gt_mesh" in sc:
         return sc["gt_mesh"]
     if "synthetic" in sc:
-        return f"{RESULTS}/{wildcards.scene}/input/gt/mesh.ply"
+        return LAYOUT.generated_gt_mesh(wildcards.scene)
     raise WorkflowError(f"scenes.{wildcards.scene}: no gt_mesh (needed by the oracle and the synthetic protocol)")
 
 
@@ -111,7 +111,7 @@ def gt_input(wildcards):
 def stereo_priors(scene, backend=None):
     """The folder of a scene's depth priors from ``backend``; by default the ones methods
     use (stereo.backend)."""
-    return f"{RESULTS}/{scene}/priors/{backend or config['stereo']['backend']}"
+    return LAYOUT.priors(scene, backend or config["stereo"]["backend"])
 
 
 def joint_inputs(wildcards):
@@ -129,7 +129,7 @@ def depth_source(wildcards):
         return stereo_priors(wildcards.scene, "oracle")
     if fuses == "priors":  # the GS2Mesh-style baseline: fuse the priors as they are
         return stereo_priors(wildcards.scene)
-    return f"{RESULTS}/{wildcards.scene}/{wildcards.method}/depth"
+    return LAYOUT.depth(wildcards.scene, wildcards.method)
 
 
 def stereo_depth_inputs(wildcards):
@@ -137,7 +137,7 @@ def stereo_depth_inputs(wildcards):
     if wildcards.backend == "oracle":
         inputs["gt"] = gt_input(wildcards)
     else:
-        inputs["stereo"] = f"{RESULTS}/{wildcards.scene}/stereo"
+        inputs["stereo"] = LAYOUT.stereo(wildcards.scene)
     return inputs
 
 
@@ -177,14 +177,14 @@ def stereo_depth_args(wildcards, input):
 
 
 def metrics_files():
-    return [f"{RESULTS}/{s}/{m}/metrics.json" for s in SCENES for m in scene_methods(s)]
+    return [LAYOUT.metrics(s, m) for s in SCENES for m in scene_methods(s)]
 
 
 def pretrain_metrics():
-    """Held-out view metrics of the pretrain stage, for scenes where a method trains or uses
-    stereo priors (rendered by the pretrained model)."""
+    """The pretrain stage's records (held-out view metrics), for scenes where a method
+    trains or uses stereo priors (rendered by the pretrained model)."""
     users = {name for name, m in METHOD.items() if m.trains or m.needs_priors}
-    return [f"{RESULTS}/{s}/pretrain/metrics.json" for s in SCENES if set(scene_methods(s)) & users]
+    return [LAYOUT.train_metrics(s, PRETRAIN) for s in SCENES if set(scene_methods(s)) & users]
 
 
 def mesh_args(wildcards):
@@ -203,9 +203,8 @@ def evaluate_inputs(wildcards):
     ground-truth files the protocol names (eve3d.evaluate.PROTOCOLS) and, where the exact
     depth is known, the depth maps the mesh fused and the exact ones."""
     sc, protocol = scene_config(wildcards.scene), PROTOCOL[wildcards.scene]
-    method_dir = f"{RESULTS}/{wildcards.scene}/{wildcards.method}"
-    inputs = {"scene": posed_dataset(wildcards),
-              "reconstruction": f"{method_dir}/mesh.ply" if protocol.scores == "mesh" else f"{method_dir}/point_cloud.ply"}
+    reconstruction = LAYOUT.mesh if protocol.scores == "mesh" else LAYOUT.model
+    inputs = {"scene": posed_dataset(wildcards), "reconstruction": reconstruction(wildcards.scene, wildcards.method)}
     for name, key in protocol.config_inputs.items():
         inputs[name] = gt_input(wildcards) if key == "gt_mesh" else scene_value(sc, key)
     if scores_depth(wildcards.scene):

@@ -10,11 +10,11 @@ def synth_args(wildcards):
 
 rule synth:
     output:
-        directory(f"{RESULTS}/{{scene}}/input"),
+        directory(LAYOUT.input("{scene}")),
     params:
         args=synth_args,
     log:
-        f"{RESULTS}/logs/{{scene}}/synth.log",
+        LAYOUT.log("{scene}", "synth"),
     conda:
         CONDA_ENV
     shell:
@@ -25,11 +25,11 @@ rule sfm:
     input:
         raw_dataset,
     output:
-        directory(f"{RESULTS}/{{scene}}/sfm"),
+        directory(LAYOUT.sfm("{scene}")),
     params:
         config=lambda wc: job_config("sfm"),
     log:
-        f"{RESULTS}/logs/{{scene}}/sfm.log",
+        LAYOUT.log("{scene}", "sfm"),
     threads: lambda wc: config["sfm"]["threads"] if config["sfm"]["threads"] > 0 else workflow.cores
     conda:
         CONDA_ENV

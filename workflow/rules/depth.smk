@@ -5,16 +5,16 @@
 rule stereo_render:
     input:
         scene=posed_dataset,
-        model=f"{RESULTS}/{{scene}}/pretrain/point_cloud.ply",
-        tone=f"{RESULTS}/{{scene}}/pretrain/{TONE_FILE}",  # read beside the model; the photos are matched through it
+        model=LAYOUT.model("{scene}", PRETRAIN),
+        tone=LAYOUT.tone_curve("{scene}"),  # read beside the model; the photos are matched through it
     output:
-        directory(f"{RESULTS}/{{scene}}/stereo"),
+        directory(LAYOUT.stereo("{scene}")),
     params:
         config=lambda wc: render_job(),
     log:
-        f"{RESULTS}/logs/{{scene}}/stereo_render.log",
+        LAYOUT.log("{scene}", "stereo_render"),
     benchmark:
-        f"{RESULTS}/benchmarks/{{scene}}/stereo_render.tsv",
+        LAYOUT.benchmark("{scene}", "stereo_render"),
     conda:
         CONDA_ENV
     shell:
@@ -26,16 +26,16 @@ rule stereo_depth:
     input:
         unpack(stereo_depth_inputs),
     output:
-        directory(f"{RESULTS}/{{scene}}/priors/{{backend}}"),
+        directory(LAYOUT.priors("{scene}", "{backend}")),
     wildcard_constraints:
         backend="oracle|sgbm|onnx",
     params:
         args=stereo_depth_args,
         config=lambda wc: job_config("stereo"),
     log:
-        f"{RESULTS}/logs/{{scene}}/stereo_depth_{{backend}}.log",
+        LAYOUT.log("{scene}", "stereo_depth", "{backend}"),
     benchmark:
-        f"{RESULTS}/benchmarks/{{scene}}/stereo_depth_{{backend}}.tsv",
+        LAYOUT.benchmark("{scene}", "stereo_depth", "{backend}"),
     conda:
         CONDA_ENV
     shell:

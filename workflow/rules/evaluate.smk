@@ -5,11 +5,11 @@ rule evaluate:
     input:
         unpack(evaluate_inputs),
     output:
-        f"{RESULTS}/{{scene}}/{{method}}/metrics.json",
+        LAYOUT.metrics("{scene}", "{method}"),
     params:
         args=evaluate_args,
     log:
-        f"{RESULTS}/logs/{{scene}}/evaluate_{{method}}.log",
+        LAYOUT.log("{scene}", "evaluate", "{method}"),
     conda:
         CONDA_ENV
     shell:
@@ -22,7 +22,7 @@ rule summary:
         metrics=metrics_files(),
         novel_views=pretrain_metrics(),
     output:
-        f"{RESULTS}/summary.csv",
+        LAYOUT.summary(),
     conda:
         CONDA_ENV
     shell:

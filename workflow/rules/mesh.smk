@@ -6,13 +6,13 @@ rule mesh:
         scene=posed_dataset,
         depth=depth_source,
     output:
-        f"{RESULTS}/{{scene}}/{{method}}/mesh.ply",
+        LAYOUT.mesh("{scene}", "{method}"),
     params:
         args=mesh_args,
     log:
-        f"{RESULTS}/logs/{{scene}}/mesh_{{method}}.log",
+        LAYOUT.log("{scene}", "mesh", "{method}"),
     benchmark:
-        f"{RESULTS}/benchmarks/{{scene}}/mesh_{{method}}.tsv",
+        LAYOUT.benchmark("{scene}", "mesh", "{method}"),
     conda:
         CONDA_ENV
     shell:

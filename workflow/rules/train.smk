@@ -6,20 +6,21 @@ rule pretrain:
     input:
         posed_dataset,
     output:
-        model=f"{RESULTS}/{{scene}}/pretrain/point_cloud.ply",
-        metrics=f"{RESULTS}/{{scene}}/pretrain/metrics.json",
-        tone=f"{RESULTS}/{{scene}}/pretrain/{TONE_FILE}",
+        model=LAYOUT.model("{scene}", PRETRAIN),
+        metrics=LAYOUT.train_metrics("{scene}", PRETRAIN),
+        tone=LAYOUT.tone_curve("{scene}"),
     params:
         config=lambda wc: training_job("pretrain"),
+        out=lambda wc: LAYOUT.pretrain(wc.scene),
     log:
-        f"{RESULTS}/logs/{{scene}}/pretrain.log",
+        LAYOUT.log("{scene}", "pretrain"),
     benchmark:
-        f"{RESULTS}/benchmarks/{{scene}}/pretrain.tsv",
+        LAYOUT.benchmark("{scene}", "pretrain"),
     threads: workflow.cores
     conda:
         CONDA_ENV
     shell:
-        "OMP_NUM_THREADS={threads} {EVE3D} pretrain --scene {input} --out {RESULTS}/{wildcards.scene}/pretrain --config {params.config}"
+        "OMP_NUM_THREADS={threads} {EVE3D} pretrain --scene {input} --out {params.out} --config {params.config}"
         " > {log} 2>&1"
 
 
@@ -27,21 +28,22 @@ rule joint:
     input:
         unpack(joint_inputs),
     output:
-        model=f"{RESULTS}/{{scene}}/{{method}}/point_cloud.ply",
-        depth=directory(f"{RESULTS}/{{scene}}/{{method}}/depth"),
-        metrics=f"{RESULTS}/{{scene}}/{{method}}/train_metrics.json",
+        model=LAYOUT.model("{scene}", "{method}"),
+        depth=directory(LAYOUT.depth("{scene}", "{method}")),
+        metrics=LAYOUT.train_metrics("{scene}", "{method}"),
     wildcard_constraints:
         method="|".join(map(re.escape, TRAINED)),
     params:
         config=lambda wc: training_job("joint", wc.scene, wc.method),
+        out=lambda wc: LAYOUT.method(wc.scene, wc.method),
         priors=lambda wc, input: f"--priors {input.priors}" if "priors" in input.keys() else "",
     log:
-        f"{RESULTS}/logs/{{scene}}/joint_{{method}}.log",
+        LAYOUT.log("{scene}", "joint", "{method}"),
     benchmark:
-        f"{RESULTS}/benchmarks/{{scene}}/joint_{{method}}.tsv",
+        LAYOUT.benchmark("{scene}", "joint", "{method}"),
     threads: workflow.cores
     conda:
         CONDA_ENV
     shell:
         "OMP_NUM_THREADS={threads} {EVE3D} joint --method {wildcards.method} --scene {input.scene}"
-        " --out {RESULTS}/{wildcards.scene}/{wildcards.method} {params.priors} --config {params.config} > {log} 2>&1"
+        " --out {params.out} {params.priors} --config {params.config} > {log} 2>&1"

@@ -1,0 +1,62 @@
+"""The results tree (eve3d/layout.py) and the metrics records ``eve3d summary`` reads."""
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from eve3d.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout, locate
+from tests.conftest import REPO, run_cli
+
+
+def test_wildcards_give_the_snakemake_patterns():
+    layout = Layout("results")
+    assert str(layout.mesh("{scene}", "{method}")) == "results/{scene}/{method}/mesh.ply"
+    assert str(layout.metrics("{scene}", "{method}")) == "results/{scene}/{method}/metrics.json"
+    assert str(layout.model("{scene}", PRETRAIN)) == "results/{scene}/pretrain/point_cloud.ply"
+    assert str(layout.train_metrics("{scene}", PRETRAIN)) == "results/{scene}/pretrain/train_metrics.json"
+    assert str(layout.priors("{scene}", "{backend}")) == "results/{scene}/priors/{backend}"
+    assert str(layout.log("{scene}", "joint", "{method}")) == "results/logs/{scene}/joint_{method}.log"
+    assert str(layout.benchmark("obj", "pretrain")) == "results/benchmarks/obj/pretrain.tsv"
+    assert str(Layout("/data/run/").summary()) == "/data/run/summary.csv"
+    assert locate(layout.metrics("obj", "pgsr")) == ("obj", "pgsr")
+
+
+def test_layout_plans_without_torch():
+    code = "import sys, eve3d.layout; assert 'torch' not in sys.modules and 'numpy' not in sys.modules"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr
+
+
+def write_record(path: Path, record: dict) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record))
+    return path
+
+
+def test_summary_reads_what_each_record_holds(tmp_path):
+    layout = Layout(tmp_path / "results")
+    scores = {"protocol": "synthetic", "fscore": 0.75, "chamfer": 0.01}
+    files = [write_record(layout.metrics("obj", "pgsr"), {RECORD: EVALUATION, **scores}),
+             # an evaluation without scene/method fields: the tree names its row
+             write_record(layout.metrics("obj", "oracle"), {RECORD: EVALUATION, **scores, "fscore": 0.99}),
+             write_record(layout.train_metrics("obj", PRETRAIN), {
+                 RECORD: TRAINING, "held_out": {"psnr": 21.5, "ssim": 0.88, "views": 4}, "train": {}})]
+    r = run_cli("summary", *files, "--out", layout.summary())
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(open(layout.summary())))
+    assert [(row["scene"], row["method"], row["fscore"]) for row in rows] == [("obj", "oracle", "0.99"),
+                                                                            ("obj", "pgsr", "0.75")]
+    views = list(csv.DictReader(open(layout.root / "summary_views.csv")))
+    assert [(v["scene"], v["stage"], v["psnr"]) for v in views] == [("obj", "pretrain", "21.5")]
+
+
+def test_summary_refuses_a_file_that_does_not_say_what_it_holds(tmp_path):
+    layout = Layout(tmp_path / "results")
+    old = write_record(layout.metrics("obj", "pgsr"), {"protocol": "synthetic", "fscore": 0.75})
+    r = run_cli("summary", old, "--out", layout.summary())
+    assert r.returncode == 2 and f"{old}: no 'record' field" in r.stderr and "--forcerun evaluate" in r.stderr
+    write_record(old, {RECORD: "mesh", "fscore": 0.75})
+    r = run_cli("summary", old, "--out", layout.summary())
+    assert r.returncode == 2 and f"{old}: 'record' is 'mesh'" in r.stderr
+    assert not layout.summary().exists()
