@@ -146,61 +146,77 @@ class GaussianModel:
         }
         return cls(params, sh_degree)
 
+    def to(self, device: torch.device | str) -> "GaussianModel":
+        """The same Gaussians as float32 contiguous tensors on ``device`` (no autograd history)."""
+        return GaussianModel({k: v.detach().to(device).float().contiguous() for k, v in self.params.items()},
+                             self.sh_degree)
+
     def save_ply(self, path: Path) -> None:
-        """Standard 3DGS binary PLY, written atomically."""
-        p = {k: v.detach().cpu().float().numpy() for k, v in self.params.items()}
-        n = len(self)
-        columns = [p["means"], np.zeros((n, 3), np.float32), p["sh0"].reshape(n, 3),
-                   p["shN"].transpose(0, 2, 1).reshape(n, -1),  # channel-major, as 3DGS stores f_rest
-                   p["logit_opacities"][:, None], p["log_scales"], p["quats"]]
-        names = (["x", "y", "z", "nx", "ny", "nz"] + [f"f_dc_{i}" for i in range(3)]
-                 + [f"f_rest_{i}" for i in range(columns[3].shape[1])] + ["opacity"]
-                 + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
-        data = np.ascontiguousarray(np.hstack(columns), dtype="<f4")
-        header = "ply\nformat binary_little_endian 1.0\n" f"element vertex {n}\n" + "".join(
-            f"property float {name}\n" for name in names) + "end_header\n"
-        with atomic_path(Path(path)) as tmp:
-            with open(tmp, "wb") as fh:
-                fh.write(header.encode("ascii"))
-                fh.write(data.tobytes())
+        """Standard 3DGS binary PLY, written atomically (:func:`write_ply`)."""
+        write_ply(self.params, path)
 
     @classmethod
     def load_ply(cls, path: Path) -> "GaussianModel":
-        """Read a 3DGS PLY (binary little-endian, float properties)."""
-        path = Path(path)
-        raw = path.read_bytes()
-        end = raw.find(b"end_header\n")
-        if not raw.startswith(b"ply\n") or end < 0:
-            raise Eve3dError(f"{path}: not a PLY file")
-        header = raw[:end].decode("ascii", errors="replace").splitlines()
-        if "format binary_little_endian 1.0" not in header:
-            raise Eve3dError(f"{path}: only binary little-endian 3DGS PLY files are supported")
-        names = [line.split()[-1] for line in header if line.startswith("property")]
-        if any(not line.startswith("property float ") for line in header if line.startswith("property")):
-            raise Eve3dError(f"{path}: every vertex property must be float (a 3DGS PLY)")
-        count = next(int(line.split()[-1]) for line in header if line.startswith("element vertex"))
-        body = raw[end + len(b"end_header\n"):]
-        if len(body) < count * len(names) * 4:
-            raise Eve3dError(f"{path}: truncated ({len(body)} bytes of data for {count} Gaussians)")
-        data = np.frombuffer(body, dtype="<f4", count=count * len(names)).reshape(count, len(names))
-        col = {name: i for i, name in enumerate(names)}
-        need = ["x", "y", "z", "opacity"] + [f"f_dc_{i}" for i in range(3)] + [f"scale_{i}" for i in range(3)] + [
-            f"rot_{i}" for i in range(4)]
-        missing = [name for name in need if name not in col]
-        if missing:
-            raise Eve3dError(f"{path}: missing 3DGS properties {', '.join(missing)}")
-        take = lambda keys: torch.from_numpy(data[:, [col[k] for k in keys]].copy())  # noqa: E731
-        rest = sorted((k for k in col if k.startswith("f_rest_")), key=lambda k: int(k.split("_")[-1]))
-        k_rest = len(rest) // 3
-        degree = round(math.sqrt(k_rest + 1)) - 1
-        if sh_coefficients(degree) - 1 != k_rest or len(rest) % 3:
-            raise Eve3dError(f"{path}: {len(rest)} f_rest properties do not match any SH degree")
-        params = {
-            "means": take(["x", "y", "z"]),
-            "quats": take([f"rot_{i}" for i in range(4)]),
-            "log_scales": take([f"scale_{i}" for i in range(3)]),
-            "logit_opacities": take(["opacity"])[:, 0],
-            "sh0": take([f"f_dc_{i}" for i in range(3)])[:, None, :],
-            "shN": take(rest).reshape(count, 3, k_rest).transpose(1, 2).contiguous(),
-        }
-        return cls(params, degree)
+        """Read a 3DGS PLY (:func:`read_ply`)."""
+        return cls(*read_ply(path))
+
+
+def write_ply(params: dict[str, torch.Tensor], path: Path) -> None:
+    """Gaussians' parameters as a standard 3DGS binary PLY, written atomically."""
+    p = {k: v.detach().cpu().float().numpy() for k, v in params.items()}
+    n = len(p["means"])
+    columns = [p["means"], np.zeros((n, 3), np.float32), p["sh0"].reshape(n, 3),
+               p["shN"].transpose(0, 2, 1).reshape(n, -1),  # channel-major, as 3DGS stores f_rest
+               p["logit_opacities"][:, None], p["log_scales"], p["quats"]]
+    names = (["x", "y", "z", "nx", "ny", "nz"] + [f"f_dc_{i}" for i in range(3)]
+             + [f"f_rest_{i}" for i in range(columns[3].shape[1])] + ["opacity"]
+             + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
+    data = np.ascontiguousarray(np.hstack(columns), dtype="<f4")
+    header = "ply\nformat binary_little_endian 1.0\n" f"element vertex {n}\n" + "".join(
+        f"property float {name}\n" for name in names) + "end_header\n"
+    with atomic_path(Path(path)) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(header.encode("ascii"))
+            fh.write(data.tobytes())
+
+
+
+def read_ply(path: Path) -> tuple[dict[str, torch.Tensor], int]:
+    """Parameters and SH degree from a 3DGS PLY (binary little-endian, float properties)."""
+    path = Path(path)
+    raw = path.read_bytes()
+    end = raw.find(b"end_header\n")
+    if not raw.startswith(b"ply\n") or end < 0:
+        raise Eve3dError(f"{path}: not a PLY file")
+    header = raw[:end].decode("ascii", errors="replace").splitlines()
+    if "format binary_little_endian 1.0" not in header:
+        raise Eve3dError(f"{path}: only binary little-endian 3DGS PLY files are supported")
+    names = [line.split()[-1] for line in header if line.startswith("property")]
+    if any(not line.startswith("property float ") for line in header if line.startswith("property")):
+        raise Eve3dError(f"{path}: every vertex property must be float (a 3DGS PLY)")
+    count = next(int(line.split()[-1]) for line in header if line.startswith("element vertex"))
+    body = raw[end + len(b"end_header\n"):]
+    if len(body) < count * len(names) * 4:
+        raise Eve3dError(f"{path}: truncated ({len(body)} bytes of data for {count} Gaussians)")
+    data = np.frombuffer(body, dtype="<f4", count=count * len(names)).reshape(count, len(names))
+    col = {name: i for i, name in enumerate(names)}
+    need = ["x", "y", "z", "opacity"] + [f"f_dc_{i}" for i in range(3)] + [f"scale_{i}" for i in range(3)] + [
+        f"rot_{i}" for i in range(4)]
+    missing = [name for name in need if name not in col]
+    if missing:
+        raise Eve3dError(f"{path}: missing 3DGS properties {', '.join(missing)}")
+    take = lambda keys: torch.from_numpy(data[:, [col[k] for k in keys]].copy())  # noqa: E731
+    rest = sorted((k for k in col if k.startswith("f_rest_")), key=lambda k: int(k.split("_")[-1]))
+    k_rest = len(rest) // 3
+    degree = round(math.sqrt(k_rest + 1)) - 1
+    if sh_coefficients(degree) - 1 != k_rest or len(rest) % 3:
+        raise Eve3dError(f"{path}: {len(rest)} f_rest properties do not match any SH degree")
+    params = {
+        "means": take(["x", "y", "z"]),
+        "quats": take([f"rot_{i}" for i in range(4)]),
+        "log_scales": take([f"scale_{i}" for i in range(3)]),
+        "logit_opacities": take(["opacity"])[:, 0],
+        "sh0": take([f"f_dc_{i}" for i in range(3)])[:, None, :],
+        "shN": take(rest).reshape(count, 3, k_rest).transpose(1, 2).contiguous(),
+    }
+    return params, degree

@@ -9,13 +9,12 @@ multi-view parts off and the plain split it is 3DGS, meshed from the expected de
 Σ w z / Σ w.
 
 Writes ``point_cloud.ply``, ``depth/{view}.npz`` (depth, confidence = rendered alpha,
-camera-space normal; at the dataset's full resolution, with PNG previews), ``train_metrics.json``
-and ``previews/``.
+camera-space normal; at the dataset's full resolution, with PNG previews),
+``train_metrics.json``, ``previews/`` and, for learnable priors, ``priors/`` (the final D̂).
 """
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -25,18 +24,21 @@ from tqdm import tqdm
 
 from eve3d.fileio import atomic_dir, atomic_path, write_image
 from eve3d.gaussians import GaussianModel
-from eve3d.layout import RECORD, TRAIN_METRICS_FILE, TRAINING
+from eve3d.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
 from eve3d.losses import (depth_normal_loss, depth_to_normal, depth_to_points, forward_backward_error, geometric_loss,
                           ncc_loss, rgb_loss)
 from eve3d.maps import save_maps
 from eve3d.methods import uses_priors
 from eve3d.neighbours import select_neighbours
 from eve3d.priors.learnable import Priors, comparison_preview, filled_log_depth, load_priors, prior_points
-from eve3d.render import RenderOutput
+from eve3d.render import RenderOutput, render_model
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Eve3dError, Scene
-from eve3d.settings import JointSettings
-from eve3d.training import Trainer, View, initial_points
+from eve3d.settings import JointSettings, RenderSettings
+from eve3d.train_state import TrainState
+from eve3d.training import LossTerms, Trainer, initial_points
+from eve3d.view_report import view_metrics, write_previews
+from eve3d.views import View, Views
 
 
 def multiview_pair(ref: View, nbr: View, depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,
@@ -77,12 +79,11 @@ class PriorState:
     """The priors inside training: D*, the confidence M^c (a checkpointed buffer) and, for
     ``priors: learnable``, the log-depth D̂ of every view as its own parameter."""
 
-    def __init__(self, trainer: Trainer, priors: Priors, s: JointSettings):
-        self.trainer, self.s, self.star = trainer, s, priors
-        self.confidence = priors.confidence.clone()
-        trainer.buffers["prior_confidence"] = self.confidence
+    def __init__(self, state: TrainState, views: Views, priors: Priors, s: JointSettings):
+        self.views, self.s, self.star = views, s, priors
+        self.confidence = state.add_buffer("prior_confidence", priors.confidence.clone())
         self.learnable = s.priors == "learnable"
-        self.log_depth = [trainer.add_extra(f"prior_log_depth/{i}", filled_log_depth(d), s.prior_lr)
+        self.log_depth = [state.add_extra(f"prior_log_depth/{i}", filled_log_depth(d), s.prior_lr)
                           for i, d in enumerate(priors.depth)] if self.learnable else []
 
     def depth(self, i: int) -> torch.Tensor:
@@ -94,7 +95,7 @@ class PriorState:
         """M^c_i ← the stereo gave a depth there, and D_prior,i passes the forward–backward
         check (φ < ``mv_threshold``) against at least ``consistent_views`` neighbours' priors.
         ``checks``: those pass masks, when the LBA has just computed them with D_prior,i."""
-        ref = self.trainer.views[i]
+        ref = self.views[i]
         if checks is None:
             errors = [forward_backward_error(self.depth(i), self.depth(n.index), ref.cam, n.cam) for n in neighbours]
             checks = [defined & (phi < self.s.mv_threshold) for phi, defined in errors]
@@ -102,14 +103,16 @@ class PriorState:
         self.confidence[i] = (self.star.depth[i] > 0) & (passed >= self.s.consistent_views)
 
 
-def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None):
-    """The loss function of the joint stage (see the module docstring)."""
-    train_set = set(trainer.train_ids)
+def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None,
+               exposure: torch.Tensor | None = None) -> LossTerms:
+    """The loss function of the joint stage (see the module docstring). ``exposure``: the
+    (views, 3, 4) affine colour correction of each view, when ``s.exposure``."""
+    train_set = set(trainer.views.train_ids)
 
     def terms(step: int, view: View, out: RenderOutput) -> dict[str, torch.Tensor]:
         rgb = out.rgb
         if s.exposure:
-            e = trainer.extra["exposure"][view.index]
+            e = exposure[view.index]
             rgb = rgb @ e[:, :3].T + e[:, 3]
         t = {"rgb": rgb_loss(rgb, view.image, s.ssim_weight)}
         visible = out.visible
@@ -199,11 +202,12 @@ def export_priors(trainer: Trainer, scene: Scene, priors: PriorState, out_dir: P
 
 
 @torch.no_grad()
-def export_depths(trainer: Trainer, scene: Scene, out_dir: Path, kind: str) -> None:
-    """Render ``kind`` (``depth`` or ``depth_expected``) for every view at full resolution."""
+def export_depths(model: GaussianModel, scene: Scene, rendering: RenderSettings, out_dir: Path, kind: str) -> None:
+    """Render ``kind`` (``depth`` or ``depth_expected``) for every view at full resolution:
+    the depth maps the mesh is fused from."""
     with atomic_dir(out_dir) as tmp:
         for cam in tqdm(scene.cameras, desc=f"rendering {kind}", unit="view"):
-            out = trainer.render(cam)
+            out = render_model(model, cam, rendering)
             normal = torch.nn.functional.normalize(out.normal, dim=-1)
             save_maps(tmp / f"{cam.view_id}.npz", depth=getattr(out, kind).cpu().numpy(),
                       confidence=out.alpha.cpu().numpy(), normal=normal.cpu().numpy())
@@ -214,7 +218,7 @@ class JointRun:
     """A joint stage ready to run: ``trainer.run(loss)``."""
 
     trainer: Trainer
-    loss: Callable[[int, View, RenderOutput], dict[str, torch.Tensor]]
+    loss: LossTerms
     priors: PriorState | None
 
 
@@ -228,22 +232,23 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
                          f"results/SCENE/priors/BACKEND, made by `eve3d stereo-render` and `eve3d stereo-depth`)")
     out_dir = Path(out_dir)
     trainer = Trainer(scene, s, out_dir, s.method)
+    state, views = trainer.state, trainer.views
     rng = np.random.default_rng(s.seed)
     prior = None
     if with_priors:
-        loaded = load_priors(Path(priors_dir), scene.cameras, [v.camera for v in trainer.views], trainer.device,
-                             s.prior_normal_span)
+        loaded = load_priors(Path(priors_dir), scene.cameras, views.cameras, trainer.device, s.prior_normal_span)
         if s.init == "priors":
-            points, colors = prior_points(loaded, [v.camera for v in trainer.views], [v.image for v in trainer.views],
-                                          trainer.train_ids, s.init_prior_points, rng)
-        prior = PriorState(trainer, loaded, s) if s.priors != "none" else None
-        trainer.input_digest = loaded.digest
+            points, colors = prior_points(loaded, views.cameras, views.images, views.train_ids, s.init_prior_points,
+                                          rng)
+        prior = PriorState(state, views, loaded, s) if s.priors != "none" else None
+        trainer.checkpoint.depend_on(loaded.digest)
     if s.init != "priors":
         points, colors = initial_points(scene, s.init_random_points, rng)
-    trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
+    state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
+    exposure = None
     if s.exposure:
-        trainer.add_extra("exposure", torch.eye(3, 4).repeat(len(trainer.views), 1, 1), s.exposure_lr)
-    return JointRun(trainer, loss_terms(trainer, s, select_neighbours(scene, s.neighbours), prior), prior)
+        exposure = state.add_extra("exposure", torch.eye(3, 4).repeat(len(views), 1, 1), s.exposure_lr)
+    return JointRun(trainer, loss_terms(trainer, s, select_neighbours(scene, s.neighbours), prior, exposure), prior)
 
 
 def train_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir: Path | None = None) -> dict:
@@ -252,16 +257,16 @@ def train_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
     run = setup_joint(scene, out_dir, s, priors_dir)
     trainer, prior = run.trainer, run.priors
     trainer.run(run.loss)
-    depth_kind = s.depth
+    model, views, depth_kind = trainer.model, trainer.views, s.depth
     if prior is not None and prior.learnable:
-        export_priors(trainer, scene, prior, out_dir / "priors", depth_kind)
-    trainer.model.save_ply(out_dir / "point_cloud.ply")
-    export_depths(trainer, scene, out_dir / "depth", depth_kind)
-    metrics = {RECORD: TRAINING, "method": s.method, "train": trainer.evaluate(trainer.train_ids),
-               "held_out": trainer.evaluate(trainer.test_ids), "gaussians": len(trainer.model),
+        export_priors(trainer, scene, prior, out_dir / PRIORS_DIR, depth_kind)
+    model.save_ply(out_dir / MODEL_FILE)
+    export_depths(model, scene, s, out_dir / DEPTH_DIR, depth_kind)
+    metrics = {RECORD: TRAINING, "method": s.method, "train": view_metrics(model, views, views.train_ids, s),
+               "held_out": view_metrics(model, views, views.test_ids, s), "gaussians": len(model),
                "depth": depth_kind, "settings": asdict(s)}
     with atomic_path(out_dir / TRAIN_METRICS_FILE) as tmp:
         tmp.write_text(json.dumps(metrics, indent=2, default=str))
-    trainer.write_previews(out_dir / "previews", depth=depth_kind)
-    trainer.finish()
+    write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth=depth_kind)
+    trainer.checkpoint.remove()
     return metrics

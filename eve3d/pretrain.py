@@ -22,15 +22,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eve3d.densify import remove
 from eve3d.fileio import atomic_path
 from eve3d.gaussians import GaussianModel
-from eve3d.layout import RECORD, TRAIN_METRICS_FILE, TRAINING
-from eve3d.render import render
+from eve3d.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
+from eve3d.render import render_model
 from eve3d.scene import Scene
+from eve3d.settings import PretrainSettings, RenderSettings
 from eve3d.stereo import TONE_FILE, scene_tone_curve
-from eve3d.settings import PretrainSettings
 from eve3d.training import Trainer, initial_points
+from eve3d.view_report import view_metrics, write_previews
+from eve3d.views import View
 
 
 @torch.no_grad()
@@ -38,7 +39,7 @@ def depth_points(trainer: Trainer, count: int, min_alpha: float = 0.9) -> tuple[
     """``count`` world points (and their photo colours) back-projected from the expected
     depth of the training views, drawn uniformly over the well-covered pixels."""
     pts, cols = [], []
-    for i in trainer.train_ids:
+    for i in trainer.views.train_ids:
         view = trainer.views[i]
         out = trainer.render(view)
         ok = (out.alpha > min_alpha) & (out.depth_expected > 0)
@@ -51,17 +52,16 @@ def depth_points(trainer: Trainer, count: int, min_alpha: float = 0.9) -> tuple[
 
 
 @torch.enable_grad()
-def blend_weights(trainer: Trainer) -> torch.Tensor:
-    """(N,) Σ over training views and pixels of each Gaussian's blending weight w = α·T:
+def blend_weights(model: GaussianModel, views: list[View], rendering: RenderSettings) -> torch.Tensor:
+    """(N,) Σ over ``views`` and their pixels of each Gaussian's blending weight w = α·T:
     the gradient of the composited constant channel 1 with respect to that channel."""
-    m = trainer.model
-    total = torch.zeros(len(m), device=trainer.device)
-    for i in trainer.train_ids:
-        ones = torch.ones(len(m), 1, device=trainer.device, requires_grad=True)
-        cam = trainer.views[i].cam
-        out = render(m.params["means"].detach(), m.params["quats"].detach(), m.scales.detach(),
-                     m.opacities.detach(), torch.zeros(len(m), 3, device=trainer.device), cam, extras=ones,
-                     backend=trainer.s.backend, antialiased=trainer.s.antialiased)
+    frozen = GaussianModel({k: v.detach() for k, v in model.params.items()}, model.sh_degree)
+    device = frozen.params["means"].device
+    total = torch.zeros(len(frozen), device=device)
+    for view in views:
+        ones = torch.ones(len(frozen), 1, device=device, requires_grad=True)
+        out = render_model(frozen, view.cam, rendering, colors=torch.zeros(len(frozen), 3, device=device),
+                           extras=ones)
         out.extras.sum().backward()
         total += ones.grad[:, 0]
     return total
@@ -73,37 +73,40 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     out_dir = Path(out_dir)
     tone = scene_tone_curve(scene, s.equalize)
     trainer = Trainer(scene, s, out_dir, "pretrain", tone)
+    state, views = trainer.state, trainer.views
     rng = np.random.default_rng(s.seed)
     points, colors = initial_points(scene, s.init_random_points, rng)
     if colors is not None:  # the sparse points' photo colours, into the curve's grey levels
         colors = tone[np.round(colors * 255).astype(np.uint8)] / 255.0
-    trainer.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
+    state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
 
     def events(step: int) -> None:
         if step in s.reinit_at:
             count = s.reinit_points or len(trainer.model)
             pts, cols = depth_points(trainer, count)
-            trainer.set_model(GaussianModel.from_points(pts, cols, s.sh_degree, thickness=s.init_thickness))
+            state.set_model(GaussianModel.from_points(pts, cols, s.sh_degree, thickness=s.init_thickness))
             print(f"\npretrain: step {step}: re-initialised {len(pts)} Gaussians from rendered depth", file=sys.stderr)
         if step in s.simplify_at:
-            weight = blend_weights(trainer)
+            weight = blend_weights(trainer.model, [views[i] for i in views.train_ids], s)
             keep = max(1, int(round(s.simplify_keep * len(weight))))
             order = torch.argsort(weight, descending=True)
             drop = torch.ones(len(weight), dtype=torch.bool, device=weight.device)
             drop[order[:keep]] = False
             drop |= weight <= 0
-            remove(trainer.model.params, trainer.optimizers, drop, trainer.densify_state)
+            state.remove_gaussians(drop)
             print(f"\npretrain: step {step}: simplified to {len(trainer.model)} Gaussians", file=sys.stderr)
 
     trainer.run(trainer.photometric_terms, events)
-    trainer.model.save_ply(out_dir / "point_cloud.ply")
+    model = trainer.model
+    model.save_ply(out_dir / MODEL_FILE)
     with atomic_path(out_dir / TONE_FILE) as tmp:
         tmp.write_text(json.dumps(tone.tolist()))
-    metrics = {RECORD: TRAINING, "held_out": trainer.evaluate(trainer.test_ids), "train": trainer.evaluate(trainer.train_ids),
-               "gaussians": len(trainer.model), "iterations": s.iterations, "resolution": s.resolution,
+    metrics = {RECORD: TRAINING, "held_out": view_metrics(model, views, views.test_ids, s),
+               "train": view_metrics(model, views, views.train_ids, s),
+               "gaussians": len(model), "iterations": s.iterations, "resolution": s.resolution,
                "settings": asdict(s)}
     with atomic_path(out_dir / TRAIN_METRICS_FILE) as tmp:
         tmp.write_text(json.dumps(metrics, indent=2, default=str))
-    trainer.write_previews(out_dir / "previews", depth="depth_expected")
-    trainer.finish()
+    write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth="depth_expected")
+    trainer.checkpoint.remove()
     return metrics

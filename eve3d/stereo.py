@@ -140,32 +140,24 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
     import torch
 
     from eve3d.gaussians import GaussianModel
-    from eve3d.render import render
+    from eve3d.render import render_model
 
     baseline, rendering = baseline or BaselineSettings(), rendering or RenderSettings()
     model = GaussianModel.load_ply(model_path)
-    p = model.params
-    background = torch.tensor(rendering.background, dtype=torch.float32)
-
-    def draw(cam: Camera):
-        centre = torch.tensor(cam.center, dtype=torch.float32)
-        return render(p["means"], p["quats"], model.scales, model.opacities, model.colors(centre), cam,
-                      background=background, backend=rendering.backend, antialiased=rendering.antialiased)
-
     # the right views come out in the model's grey levels: the photos are matched through the same curve
     tone_path = Path(model_path).with_name(TONE_FILE)
     tone = json.loads(tone_path.read_text()) if tone_path.exists() else list(range(256))
     info = {"baseline": asdict(baseline), "model": str(model_path), "tone_curve": tone, "views": {}}
     with atomic_dir(out_dir) as tmp, torch.no_grad():
         for cam in tqdm(scene.cameras, desc="rendering right views", unit="view"):
-            out = draw(cam)
+            out = render_model(model, cam, rendering)
             depth = out.depth_expected[out.alpha > 0.5].numpy()
             near, median, far = (np.percentile(depth, [1, 50, 99]) if len(depth)
                                  else np.array([0.1, 1.0, 10.0]) * scene.radius)
             b = baseline.of_view(cam, scene.radius, float(median))
             d_min, d_max = 0.75 * cam.fx * b / far, 1.25 * cam.fx * b / max(near, 1e-6)
             margin = int(np.ceil(d_max)) + 16  # a matcher may round its range up (SGBM: to 16 px)
-            right = draw(margin_camera(right_camera(cam, b), margin))
+            right = render_model(model, margin_camera(right_camera(cam, b), margin), rendering)
             write_image(tmp / "right" / f"{cam.view_id}.png",
                         (right.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
             info["views"][cam.view_id] = {"baseline": b, "min_disparity": float(np.floor(d_min)),

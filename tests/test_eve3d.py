@@ -16,7 +16,9 @@ from eve3d.priors.learnable import resample_prior
 from eve3d.priors.oracle import oracle_priors
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Camera, Eve3dError
-from eve3d.training import Trainer, View
+from eve3d.train_state import Checkpoint
+from eve3d.training import Trainer
+from eve3d.views import View
 from tests.conftest import run_cli
 from tests.test_training import _joint_settings
 
@@ -112,7 +114,7 @@ def _eve3d(**kw) -> JointSettings:
 
 
 def _log_depths(trainer: Trainer) -> dict[str, torch.Tensor]:
-    return {k: v.detach().clone() for k, v in trainer.extra.items() if k.startswith("prior_log_depth/")}
+    return {k: v.detach().clone() for k, v in trainer.state.extras.items() if k.startswith("prior_log_depth/")}
 
 
 def test_learnable_priors_move_only_as_the_method_says(tiny_scene, tmp_path, noisy_priors):
@@ -144,7 +146,7 @@ def test_a_step_leaves_unvisited_views_priors_and_moments_untouched(tiny_scene, 
     used = {visited[0], *select_neighbours(tiny_scene, 2)[visited[0]]}
     assert len(used) == 3
     for k, v in _log_depths(run.trainer).items():
-        i, state = int(k.split("/")[1]), run.trainer.extra_optimizers[k].state
+        i, state = int(k.split("/")[1]), run.trainer.state.extra_optimizers[k].state
         if i in used:
             assert not torch.equal(start[k], v) and state, i
         else:
@@ -174,19 +176,19 @@ def test_killed_run_resumes_to_the_same_gaussians_and_priors(tiny_scene, tmp_pat
         return run
 
     straight = final(tmp_path / "straight")
-    save = Trainer.save_checkpoint
+    save = Checkpoint.save
 
-    def save_then_die(self):
-        save(self)
-        if self.step == 30:
+    def save_then_die(self, state):
+        save(self, state)
+        if state.step == 30:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
+    monkeypatch.setattr(Checkpoint, "save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
         final(tmp_path / "killed")
-    monkeypatch.setattr(Trainer, "save_checkpoint", save)
+    monkeypatch.setattr(Checkpoint, "save", save)
     resumed = final(tmp_path / "killed")
-    assert resumed.trainer.step == 40
+    assert resumed.trainer.state.step == 40
     for name, value in straight.trainer.model.params.items():
         assert torch.allclose(resumed.trainer.model.params[name], value, atol=1e-5), name
     for k, v in _log_depths(straight.trainer).items():
@@ -197,14 +199,16 @@ def test_killed_run_resumes_to_the_same_gaussians_and_priors(tiny_scene, tmp_pat
 def test_checkpoint_from_other_priors_is_not_resumed(tiny_scene, tmp_path, noisy_priors, capsys):
     s = _eve3d(iterations=10, prior_from=0, joint_from=5)
     run = setup_joint(tiny_scene, tmp_path / "run", s, noisy_priors)
-    run.trainer.save_checkpoint()
+    run.trainer.checkpoint.save(run.trainer.state)
     other = tmp_path / "other"
     other.mkdir()
     for f in noisy_priors.glob("*.npz"):
         m = load_maps(f)
         save_maps(other / f.name, preview=False, **{**m, "depth": m["depth"] * 1.01})
-    assert setup_joint(tiny_scene, tmp_path / "run", s, noisy_priors).trainer.resume()
-    assert not setup_joint(tiny_scene, tmp_path / "run", s, other).trainer.resume()
+    same = setup_joint(tiny_scene, tmp_path / "run", s, noisy_priors).trainer
+    assert same.checkpoint.resume(same.state)
+    changed = setup_joint(tiny_scene, tmp_path / "run", s, other).trainer
+    assert not changed.checkpoint.resume(changed.state)
     assert "other settings" in capsys.readouterr().err
 
 

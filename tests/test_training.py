@@ -13,7 +13,9 @@ from eve3d.losses import depth_to_normal, forward_backward_error, geometric_loss
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Camera, Eve3dError
 from eve3d.settings import DensifySettings, JointSettings, TrainSettings, from_mapping
+from eve3d.train_state import Checkpoint
 from eve3d.training import NonFiniteLoss, Trainer
+from eve3d.view_report import view_metrics
 
 
 def constructed_model():
@@ -143,10 +145,10 @@ def test_200_iterations_raise_psnr_by_5_db(tiny_scene, tmp_path):
     s = TrainSettings(iterations=200, sh_degree=0, checkpoint_every=0,
                       densify=DensifySettings(refine_start=50, refine_every=50, reset_every=0))
     trainer = Trainer(tiny_scene, s, tmp_path, "fit")
-    trainer.set_model(GaussianModel.from_points(tiny_scene.points, tiny_scene.point_colors / 255, 0))
-    before = trainer.evaluate(trainer.train_ids)["psnr"]
+    trainer.state.set_model(GaussianModel.from_points(tiny_scene.points, tiny_scene.point_colors / 255, 0))
+    before = view_metrics(trainer.model, trainer.views, trainer.views.train_ids, s)["psnr"]
     trainer.run(lambda step, view, out: {"rgb": rgb_loss(out.rgb, view.image)})
-    after = trainer.evaluate(trainer.train_ids)["psnr"]
+    after = view_metrics(trainer.model, trainer.views, trainer.views.train_ids, s)["psnr"]
     print(f"PSNR {before:.2f} → {after:.2f} dB")
     assert after - before >= 5.0
 
@@ -165,17 +167,17 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeyp
     straight = GaussianModel.load_ply(tmp_path / "straight/point_cloud.ply")
     assert not (tmp_path / "straight/checkpoint.pt").exists()  # removed once the outputs exist
 
-    save = Trainer.save_checkpoint
+    save = Checkpoint.save
 
-    def save_then_die(self):
-        save(self)
-        if self.step == 50:
+    def save_then_die(self, state):
+        save(self, state)
+        if state.step == 50:
             raise KeyboardInterrupt  # killed right after the second checkpoint
 
-    monkeypatch.setattr(Trainer, "save_checkpoint", save_then_die)
+    monkeypatch.setattr(Checkpoint, "save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
         train_joint(tiny_scene, tmp_path / "killed", _joint_settings(**settings))
-    monkeypatch.setattr(Trainer, "save_checkpoint", save)
+    monkeypatch.setattr(Checkpoint, "save", save)
     assert (tmp_path / "killed/checkpoint.pt").exists() and not (tmp_path / "killed/point_cloud.ply").exists()
     train_joint(tiny_scene, tmp_path / "killed", _joint_settings(**settings))
     resumed = GaussianModel.load_ply(tmp_path / "killed/point_cloud.ply")
@@ -187,11 +189,11 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeyp
 
 def test_changed_settings_do_not_resume_a_stale_checkpoint(tiny_scene, tmp_path, capsys):
     trainer = Trainer(tiny_scene, _joint_settings(), tmp_path, "a")
-    trainer.set_model(GaussianModel.from_points(tiny_scene.points, None, 1))
-    trainer.save_checkpoint()
+    trainer.state.set_model(GaussianModel.from_points(tiny_scene.points, None, 1))
+    trainer.checkpoint.save(trainer.state)
     other = Trainer(tiny_scene, _joint_settings(iterations=61), tmp_path, "b")
-    other.set_model(GaussianModel.from_points(tiny_scene.points, None, 1))
-    assert not other.resume()
+    other.state.set_model(GaussianModel.from_points(tiny_scene.points, None, 1))
+    assert not other.checkpoint.resume(other.state)
     assert "other settings" in capsys.readouterr().err
 
 

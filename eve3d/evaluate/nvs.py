@@ -22,7 +22,8 @@ def evaluate_views(inputs: EvalInputs) -> dict:
     """PSNR and SSIM of the held-out views (module docstring)."""
     from eve3d.gaussians import GaussianModel
     from eve3d.settings import TrainSettings
-    from eve3d.training import Trainer
+    from eve3d.view_report import view_metrics
+    from eve3d.views import Views, pick_device
 
     holdout = PROTOCOLS["nvs"].joint_settings["holdout"]
     model_path = inputs.reconstruction
@@ -35,10 +36,10 @@ def evaluate_views(inputs: EvalInputs) -> dict:
         raise Eve3dError(f"{model_path}: trained with holdout {trained.get('holdout')}, so the views the nvs protocol "
                          f"scores (every {holdout}th) were training views; train with joint.holdout: {holdout} "
                          f"(the workflow does so for scenes with protocol: nvs)")
-    model = GaussianModel.load_ply(model_path)
     render = {k: tuple(v) if isinstance(v, list) else v for k, v in trained.items() if k in RENDER_KEYS}
-    settings = TrainSettings(holdout=holdout, sh_degree=model.sh_degree, **render)
-    trainer = Trainer(inputs.scene, settings, model_path.parent, "nvs")
-    trainer.set_model(model)
-    held = trainer.evaluate(trainer.test_ids)
+    settings = TrainSettings(holdout=holdout, **render)
+    device = pick_device(settings.device)
+    views = Views.load(inputs.scene, settings.resolution, holdout, device)
+    model = GaussianModel.load_ply(model_path).to(device)
+    held = view_metrics(model, views, views.test_ids, settings)
     return {**held, "resolution": settings.resolution, "holdout": holdout}

@@ -12,16 +12,24 @@
 ``auto`` picks ``gsplat`` for CUDA tensors when gsplat imports, else ``cpu`` when the
 extension builds, else ``torch``. All follow gsplat's rules (see
 :mod:`eve3d.render.projection`), so they agree.
+
+``render_model`` renders a :class:`~eve3d.gaussians.GaussianModel` with a stage's
+:class:`~eve3d.settings.RenderSettings`; every stage that renders a model (training,
+previews, exported depth, the stereo pairs' right views, the nvs protocol) calls it.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 
 from eve3d.render.projection import CameraTensors, plane_features, project, quat_to_rotmat
 from eve3d.scene import Camera, Eve3dError
-from eve3d.settings import RENDER_BACKENDS
+from eve3d.settings import RENDER_BACKENDS, RenderSettings
+
+if TYPE_CHECKING:
+    from eve3d.gaussians import GaussianModel
 
 
 @dataclass
@@ -92,29 +100,9 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     normals, distances = plane_features(means_c, rotmats, scales, cam.R)
     parts = [colors, normals, distances[:, None], means_c[:, 2:3]] + ([extras] if extras is not None else [])
     features = torch.cat(parts, dim=1)
-
-    if backend in ("cpu", "torch"):
-        from eve3d.render import cpu, pairs
-
-        proj = project(means_c, rotmats, scales, opacities, cam, near, far)
-        if antialiased:
-            opacities = opacities * proj.compensation
-        means2d = proj.means2d
-        if means2d.requires_grad:
-            means2d.retain_grad()
-        absgrad_buf = torch.zeros_like(means2d.detach()) if absgrad else None
-        if backend == "cpu":
-            image, alpha, n_pairs = cpu.rasterize(proj, opacities, features, cam.width, cam.height, absgrad_buf)
-        else:
-            image, alpha, n_pairs = pairs.rasterize(proj, opacities, features, cam.width, cam.height, absgrad_buf,
-                                                    max_pairs)
-        radii = proj.radii
-    elif backend == "gsplat":
-        from eve3d.render.cuda import rasterize_gsplat
-
-        image, alpha, radii, means2d, absgrad_buf = rasterize_gsplat(
-            means, quats, scales, opacities, features, cam, near, far, absgrad, antialiased)
-        n_pairs = None
+    image, alpha, radii, means2d, absgrad_buf, n_pairs = _rasterize(
+        backend, means, quats, scales, opacities, features, rotmats, means_c, cam, near, far, absgrad, antialiased,
+        max_pairs)
 
     rgb = image[..., :n_colors] + (1 - alpha)[..., None] * background
     normal = image[..., n_colors:n_colors + 3]
@@ -131,6 +119,58 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
                         depth_expected=depth_expected,
                         extras=image[..., n_colors + 5:] if extras is not None else None,
                         radii=radii, means2d=means2d, absgrad=absgrad_buf, n_pairs=n_pairs, backend=backend)
+
+
+def _rasterize(backend: str, means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
+               opacities: torch.Tensor, features: torch.Tensor, rotmats: torch.Tensor, means_c: torch.Tensor,
+               cam: CameraTensors, near: float, far: float, absgrad: bool, antialiased: bool, max_pairs: int
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None, int | None]:
+    """The backend's part of :func:`render`: composited features (H, W, F), alpha (H, W),
+    radii, the 2D means (their gradient retained), the AbsGS buffer and the pair count."""
+    if backend in ("cpu", "torch"):
+        from eve3d.render import cpu, pairs
+
+        proj = project(means_c, rotmats, scales, opacities, cam, near, far)
+        if antialiased:
+            opacities = opacities * proj.compensation
+        means2d = proj.means2d
+        if means2d.requires_grad:
+            means2d.retain_grad()
+        absgrad_buf = torch.zeros_like(means2d.detach()) if absgrad else None
+        if backend == "cpu":
+            image, alpha, n_pairs = cpu.rasterize(proj, opacities, features, cam.width, cam.height, absgrad_buf)
+        else:
+            image, alpha, n_pairs = pairs.rasterize(proj, opacities, features, cam.width, cam.height, absgrad_buf,
+                                                    max_pairs)
+        return image, alpha, proj.radii, means2d, absgrad_buf, n_pairs
+    from eve3d.render.cuda import rasterize_gsplat
+
+    image, alpha, radii, means2d, absgrad_buf = rasterize_gsplat(
+        means, quats, scales, opacities, features, cam, near, far, absgrad, antialiased)
+    return image, alpha, radii, means2d, absgrad_buf, None
+
+
+def render_model(model: GaussianModel, camera: Camera | CameraTensors, rendering: RenderSettings,
+                 sh_degree: int | None = None, *, colors: torch.Tensor | None = None, **kw) -> RenderOutput:
+    """Render ``model`` from ``camera`` as ``rendering`` says (background, backend,
+    antialiasing): the one way every stage renders a model, so a trained model renders
+    elsewhere (the right views, the depth maps, the nvs protocol) as it was trained.
+
+    Colours: the model's SH up to ``sh_degree`` (default: all) seen from the camera centre,
+    unless ``colors`` (N, C) are given. A :class:`Camera` gives its centre from its float64
+    pose; the training views' :class:`CameraTensors` from their own R and t (−Rᵀt). ``kw``
+    goes to :func:`render` (``extras``, ``absgrad``, ...)."""
+    p = model.params
+    means = p["means"]
+    if colors is None:
+        if isinstance(camera, CameraTensors):
+            centre = -camera.R.T @ camera.t
+        else:
+            centre = torch.tensor(camera.center, dtype=means.dtype, device=means.device)
+        colors = model.colors(centre, sh_degree)
+    background = torch.tensor(rendering.background, dtype=means.dtype, device=means.device)
+    return render(means, p["quats"], model.scales, model.opacities, colors, camera, background=background,
+                  backend=rendering.backend, antialiased=rendering.antialiased, **kw)
 
 
 def _auto_backend(means: torch.Tensor) -> str:
