@@ -1,34 +1,14 @@
 """The Snakemake workflow: config validation, dry runs (local and SLURM), a tiny real run."""
 import csv
-import shutil
-import subprocess
-import sys
-
 import json
+import shutil
 
 import pytest
-import yaml
 
 from eve3d.io import load_scene
 from eve3d.io.colmap import write_colmap
 from eve3d.synth import generate
-from tests.conftest import REPO, run_cli
-
-SNAKEMAKE = [sys.executable, "-m", "snakemake"]
-
-
-def snakemake(*args, cwd=REPO):
-    return subprocess.run([*SNAKEMAKE, "-s", str(REPO / "Snakefile"), *args], capture_output=True, text=True, cwd=cwd)
-
-
-def write_config(tmp_path, **overrides):
-    config = {"preset": "cpu", "results": str(tmp_path / "results"), "methods": ["oracle"],
-              "scenes": {"tiny": {"synthetic": {"kind": "object", "views": 12, "width": 160, "height": 120}}},
-              "mesh": {"coarsen": 8}}
-    config.update(overrides)
-    path = tmp_path / "config.yaml"
-    path.write_text(yaml.safe_dump(config))
-    return path
+from tests.helpers import REPO, dtu_scale_mat, run_cli, snakemake, write_config, write_dtu_layout
 
 
 def test_default_config_dry_run_lists_every_stage(tmp_path):
@@ -180,8 +160,6 @@ def test_scene_without_ground_truth_is_refused_before_any_job(tmp_path, object_d
 def test_dry_run_of_dtu_and_nvs_scenes(tmp_path, object_scene, object_dataset):
     """A DTU scan (default protocol dtu; no GT mesh, so no oracle) and a COLMAP scene scored
     on held-out views (protocol nvs; trained methods only, held out in training)."""
-    from tests.test_scene_io import dtu_scale_mat, write_dtu_layout
-
     scan = tmp_path / "scan1"
     write_dtu_layout(object_scene, scan, dtu_scale_mat())
     for name in ("stl001_total.ply", "ObsMask1_10.mat", "Plane1.mat"):
