@@ -1,13 +1,9 @@
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from eve3d.io import load_scene
 from eve3d.synth import generate
-
-REPO = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="session")
@@ -41,9 +37,3 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
-
-
-def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """Run ``python -m eve3d ARGS`` in a fresh process, as the workflow does."""
-    return subprocess.run([sys.executable, "-m", "eve3d", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd or REPO)

@@ -7,7 +7,7 @@ import pytest
 from eve3d.config import resolve_config
 from eve3d.io.colmap import import_pycolmap
 from eve3d.scene import Eve3dError
-from tests.conftest import run_cli
+from tests.helpers import run_cli
 
 
 @pytest.fixture

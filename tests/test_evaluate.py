@@ -14,8 +14,7 @@ from eve3d.io import load_scene
 from eve3d.raycast import MeshRaycaster, seen_counts
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.synth import object_cameras
-from tests.conftest import run_cli
-from tests.test_scene_io import dtu_scale_mat, write_dtu_layout
+from tests.helpers import dtu_scale_mat, run_cli, write_dtu_layout
 
 
 def point_triangle_distance(p, a, b, c):

@@ -19,8 +19,7 @@ from eve3d.scene import Camera, Eve3dError
 from eve3d.train_state import Checkpoint
 from eve3d.training import Trainer
 from eve3d.views import View
-from tests.conftest import run_cli
-from tests.test_training import _joint_settings
+from tests.helpers import joint_settings, run_cli
 
 
 # -- the LBA's geometry ----------------------------------------------------------------------
@@ -109,8 +108,8 @@ def noisy_priors(tiny_scene, tmp_path_factory) -> Path:
 
 def _eve3d(**kw) -> JointSettings:
     base = {**methods()["eve3d"].settings, "init_prior_points": 3000}
-    densify = _joint_settings().densify
-    return _joint_settings(**{**base, **kw, "method": "eve3d"}, densify=replace(densify, refine_stop=0))
+    densify = joint_settings().densify
+    return joint_settings(**{**base, **kw, "method": "eve3d"}, densify=replace(densify, refine_stop=0))
 
 
 def _log_depths(trainer: Trainer) -> dict[str, torch.Tensor]:
@@ -154,7 +153,7 @@ def test_a_step_leaves_unvisited_views_priors_and_moments_untouched(tiny_scene, 
 
 
 def test_prior_fixed_has_no_learnable_priors_and_pulls_towards_d_star(tiny_scene, tmp_path, noisy_priors):
-    s = _joint_settings(**methods()["prior-fixed"].settings, method="prior-fixed", iterations=30, prior_from=0,
+    s = joint_settings(**methods()["prior-fixed"].settings, method="prior-fixed", iterations=30, prior_from=0,
                         joint_from=10)
     run = setup_joint(tiny_scene, tmp_path, s, noisy_priors)
     star = run.priors.star.depth.clone()

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from eve3d.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout, locate
-from tests.conftest import REPO, run_cli
+from tests.helpers import REPO, run_cli
 
 
 def test_wildcards_give_the_snakemake_patterns():

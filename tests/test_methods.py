@@ -4,8 +4,7 @@ import pytest
 from eve3d.joint import train_joint
 from eve3d.methods import REGISTRY, methods
 from eve3d.scene import Eve3dError
-from tests.test_training import _joint_settings
-from tests.test_workflow import snakemake, write_config
+from tests.helpers import joint_settings, snakemake, write_config
 
 
 def test_variants_add_methods_and_change_registered_ones():
@@ -38,7 +37,7 @@ def test_a_variant_in_config_trains_exactly_like_the_registered_method(tiny_scen
     iterations wrote byte-identical point_cloud.ply files)."""
     spelled = methods({"my-3dgs": {"method": "pgsr", **REGISTRY["3dgs"].settings}})["my-3dgs"]
     for name, m in (("3dgs", REGISTRY["3dgs"]), ("my-3dgs", spelled)):
-        train_joint(tiny_scene, tmp_path / name, _joint_settings(iterations=40, **_overrides(m.settings)))
+        train_joint(tiny_scene, tmp_path / name, joint_settings(iterations=40, **_overrides(m.settings)))
     assert (tmp_path / "3dgs/point_cloud.ply").read_bytes() == (tmp_path / "my-3dgs/point_cloud.ply").read_bytes()
 
 
@@ -49,7 +48,7 @@ def _overrides(settings: dict) -> dict:
 
     out = dict(settings)
     if "densify" in out:
-        base = _joint_settings().densify
+        base = joint_settings().densify
         out["densify"] = replace(base, **out["densify"]) if isinstance(base, DensifySettings) else out["densify"]
     return out
 

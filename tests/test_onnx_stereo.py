@@ -9,7 +9,7 @@ from eve3d.settings import OnnxSpec
 from eve3d.scene import Eve3dError
 from eve3d.maps import load_maps
 from eve3d.stereo import stereo_priors
-from tests.test_stereo import shifted_pair, stereo_scene
+from tests.helpers import shifted_pair, stereo_scene
 
 # torch's TorchScript-based exporter (no onnxscript needed) warns that it is the legacy one.
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning", "ignore::torch.jit.TracerWarning",

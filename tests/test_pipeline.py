@@ -8,7 +8,7 @@ import pytest
 from eve3d.maps import load_maps
 from eve3d.raycast import MeshRaycaster
 from eve3d.synth import generate
-from tests.conftest import run_cli
+from tests.helpers import run_cli
 
 
 def test_synthetic_scene_is_consistent(object_scene):

@@ -9,6 +9,7 @@ from eve3d.io import load_scene
 from eve3d.io.colmap import read_colmap, write_colmap
 from eve3d.io.dtu import decompose_projection
 from eve3d.scene import Camera, Scene, similarity_fit
+from tests.helpers import dtu_scale_mat, write_dtu_layout
 
 
 @pytest.mark.parametrize("binary", [True, False])
@@ -40,30 +41,6 @@ def test_dtu_world_mat_decomposes_and_recomposes():
         P2 = K2 @ np.hstack([R2, t2[:, None]])
         Pn = P / (np.linalg.norm(P[2, :3]) * np.sign(np.linalg.det(P[:, :3])))  # P's own scale removed
         assert np.abs(P2 - Pn).max() / np.abs(Pn).max() < 1e-6
-
-
-def write_dtu_layout(scene: Scene, root, scale_mat: np.ndarray) -> None:
-    """Write a scene in the IDR/NeuS DTU layout, its cameras expressed in 'mm' = scale_mat·x."""
-    (root / "image").mkdir(parents=True)
-    (root / "mask").mkdir()
-    inv = np.linalg.inv(scale_mat)
-    arrays = {}
-    for i, cam in enumerate(scene.cameras):
-        shutil.copy(cam.image_path, root / "image" / f"{i:06d}.png")
-        shutil.copy(scene.root / "masks" / cam.name, root / "mask" / f"{i:03d}.png")
-        world_mat = np.eye(4)
-        idr_k = cam.K.copy()
-        idr_k[:2, 2] -= 0.5  # IDR/NeuS put pixel centres at integer coordinates
-        world_mat[:3] = idr_k @ cam.world_to_camera[:3] @ inv  # maps mm points to pixels
-        arrays[f"world_mat_{i}"] = world_mat
-        arrays[f"scale_mat_{i}"] = scale_mat
-    np.savez(root / "cameras.npz", **arrays)
-
-
-def dtu_scale_mat() -> np.ndarray:
-    s = np.diag([50.0, 50.0, 50.0, 1.0])
-    s[:3, 3] = [10.0, -20.0, 600.0]
-    return s
 
 
 def test_dtu_reader_recovers_normalised_cameras(object_scene, tmp_path):

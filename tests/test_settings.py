@@ -10,7 +10,7 @@ import yaml
 from eve3d.scene import Eve3dError
 from eve3d.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings,
                             from_mapping, pick)
-from tests.conftest import REPO
+from tests.helpers import REPO
 
 # Blocks every import of torch in the interpreter it is put in front of.
 NO_TORCH = """

@@ -6,7 +6,7 @@ from eve3d.io import load_scene
 from eve3d.io.colmap import read_colmap
 from eve3d.scene import similarity_fit
 from eve3d.synth import generate
-from tests.conftest import run_cli
+from tests.helpers import run_cli
 
 
 @pytest.mark.slow

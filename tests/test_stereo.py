@@ -8,6 +8,7 @@ from eve3d.bench import stereo_motorcycle
 from eve3d.maps import load_maps
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.settings import BaselineSettings, SgbmSettings
+from tests.helpers import shifted_pair, stereo_scene
 from eve3d.stereo import (PAIRS_FILE, checked_confidence, equalizing_curve, local_std, render_right_views,
                           right_camera, sgbm_disparity, sgbm_priors)
 
@@ -29,16 +30,6 @@ def test_sgbm_on_motorcycle_meets_the_bar():
     r = stereo_motorcycle()
     print(r)
     assert r["density"] >= 0.80 and r["bad2"] <= 8.0
-
-
-def shifted_pair(disparity: int, h: int = 96, w: int = 128, grain: int = 4):
-    """A textured pair with a constant disparity: random values upsampled ``grain`` times."""
-    rng = np.random.default_rng(1)
-    import cv2
-
-    tex = cv2.resize(rng.integers(0, 255, (h // grain, (w + disparity) // grain, 3)).astype(np.uint8),
-                     (w + disparity, h), interpolation=cv2.INTER_CUBIC)
-    return np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, disparity:])  # x_right = x_left − d
 
 
 def test_sgbm_recovers_a_constant_disparity_and_rejects_flat_regions():
@@ -120,21 +111,6 @@ def test_wls_fills_the_disparity_and_keeps_it():
     assert core.mean() > 0.9 and np.allclose(disp[:, 40:80][core], 8, atol=0.1)
     assert (disp[:, :90] > 0).mean() > (raw[:, :90] > 0).mean()
     assert not confidence[:, 100:].any() and 0 <= confidence.min() and confidence.max() <= 1
-
-
-def stereo_scene(tmp_path, disparity: int, baseline: float = 0.5):
-    """One view (fx = 100) and its right view, a constant-disparity textured pair; the pair
-    file is written only on request (see the test of its absence)."""
-    import cv2
-
-    left, right = shifted_pair(disparity)
-    cv2.imwrite(str(tmp_path / "v.png"), left[..., ::-1])
-    (tmp_path / "stereo/right").mkdir(parents=True)
-    cv2.imwrite(str(tmp_path / "stereo/right/v.png"), right[..., ::-1])
-    K = np.array([[100.0, 0, 64], [0, 100, 48], [0, 0, 1]])
-    scene = Scene(tmp_path, [Camera("v.png", 128, 96, K, np.eye(3), np.zeros(3), image_path=tmp_path / "v.png")])
-    pairs = {"views": {"v": {"baseline": baseline, "min_disparity": 0, "max_disparity": 3 * disparity, "margin": 0}}}
-    return scene, lambda: (tmp_path / "stereo" / PAIRS_FILE).write_text(json.dumps(pairs))
 
 
 def test_sgbm_priors_write_depth_fx_b_over_d(tmp_path):

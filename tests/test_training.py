@@ -16,6 +16,7 @@ from eve3d.settings import DensifySettings, JointSettings, TrainSettings, from_m
 from eve3d.train_state import Checkpoint
 from eve3d.training import NonFiniteLoss, Trainer
 from eve3d.view_report import view_metrics
+from tests.helpers import joint_settings
 
 
 def constructed_model():
@@ -153,17 +154,9 @@ def test_200_iterations_raise_psnr_by_5_db(tiny_scene, tmp_path):
     assert after - before >= 5.0
 
 
-def _joint_settings(**kw) -> JointSettings:
-    base = dict(method="pgsr", iterations=60, sh_degree=1, sh_degree_interval=20, checkpoint_every=25,
-                dn_from=20, mv_from=20, ncc_pixels=256, previews=1,
-                densify=DensifySettings(refine_start=10, refine_every=10, refine_stop=50, reset_every=0))
-    base.update(kw)
-    return JointSettings(**base)
-
-
 def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeypatch, one_thread):
     settings = dict(exposure=True, exposure_lr=0.01)  # the per-image exposures are resumed too
-    train_joint(tiny_scene, tmp_path / "straight", _joint_settings(**settings))
+    train_joint(tiny_scene, tmp_path / "straight", joint_settings(**settings))
     straight = GaussianModel.load_ply(tmp_path / "straight/point_cloud.ply")
     assert not (tmp_path / "straight/checkpoint.pt").exists()  # removed once the outputs exist
 
@@ -176,10 +169,10 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeyp
 
     monkeypatch.setattr(Checkpoint, "save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
-        train_joint(tiny_scene, tmp_path / "killed", _joint_settings(**settings))
+        train_joint(tiny_scene, tmp_path / "killed", joint_settings(**settings))
     monkeypatch.setattr(Checkpoint, "save", save)
     assert (tmp_path / "killed/checkpoint.pt").exists() and not (tmp_path / "killed/point_cloud.ply").exists()
-    train_joint(tiny_scene, tmp_path / "killed", _joint_settings(**settings))
+    train_joint(tiny_scene, tmp_path / "killed", joint_settings(**settings))
     resumed = GaussianModel.load_ply(tmp_path / "killed/point_cloud.ply")
     assert len(resumed) == len(straight)
     for name, value in straight.params.items():
@@ -188,10 +181,10 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeyp
 
 
 def test_changed_settings_do_not_resume_a_stale_checkpoint(tiny_scene, tmp_path, capsys):
-    trainer = Trainer(tiny_scene, _joint_settings(), tmp_path, "a")
+    trainer = Trainer(tiny_scene, joint_settings(), tmp_path, "a")
     trainer.state.set_model(GaussianModel.from_points(tiny_scene.points, None, 1))
     trainer.checkpoint.save(trainer.state)
-    other = Trainer(tiny_scene, _joint_settings(iterations=61), tmp_path, "b")
+    other = Trainer(tiny_scene, joint_settings(iterations=61), tmp_path, "b")
     other.state.set_model(GaussianModel.from_points(tiny_scene.points, None, 1))
     assert not other.checkpoint.resume(other.state)
     assert "other settings" in capsys.readouterr().err
@@ -199,8 +192,8 @@ def test_changed_settings_do_not_resume_a_stale_checkpoint(tiny_scene, tmp_path,
 
 def test_nan_stops_with_iteration_and_term_and_keeps_checkpoint(tiny_scene, tmp_path):
     with pytest.raises(Eve3dError, match="joint.dn_weight: expected a number ≥ 0, got nan"):
-        _joint_settings(dn_weight=float("nan"))  # a NaN setting is refused up front
-    s = _joint_settings(dn_from=30, checkpoint_every=10)
+        joint_settings(dn_weight=float("nan"))  # a NaN setting is refused up front
+    s = joint_settings(dn_from=30, checkpoint_every=10)
     s.dn_weight = float("nan")  # so the loss term turns NaN at step 30
     with pytest.raises(NonFiniteLoss, match=r"loss term depth_normal is not finite at iteration 30.*step 30"):
         train_joint(tiny_scene, tmp_path, s)

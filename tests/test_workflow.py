@@ -1,35 +1,87 @@
 """The Snakemake workflow: config validation, dry runs (local and SLURM), a tiny real run."""
 import csv
-import shutil
-import subprocess
-import sys
-
 import json
+import math
+import shutil
 
+import numpy as np
 import pytest
-import yaml
+from PIL import Image
 
 from eve3d.io import load_scene
 from eve3d.io.colmap import write_colmap
 from eve3d.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout
 from eve3d.synth import generate
-from tests.conftest import REPO, run_cli
+from tests.helpers import REPO, dtu_scale_mat, run_cli, snakemake, write_config, write_dtu_layout
 
-SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+# -- what each rule writes ---------------------------------------------------------------------
+
+def assert_synth_input(root, views: int, width: int, height: int) -> None:
+    """synth: ``images/`` (and ``masks/``) with one PNG per view at the requested size, a
+    COLMAP model in ``sparse/0`` that loads with the views' cameras and sparse points, and
+    the GT mesh ``gt/mesh.ply`` with faces."""
+    images = sorted((root / "images").glob("*.png"))
+    assert len(images) == views and len(list((root / "masks").glob("*.png"))) == views
+    assert all(Image.open(f).size == (width, height) for f in images)
+    assert (root / "sparse/0").is_dir()
+    scene = load_scene(root)
+    assert [c.name for c in scene.cameras] == [f.name for f in images]
+    assert all((c.width, c.height) == (width, height) for c in scene.cameras)
+    assert len(scene.points) > 0 and np.isfinite(scene.points).all()
+    assert_mesh(root / "gt/mesh.ply")
 
 
-def snakemake(*args, cwd=REPO):
-    return subprocess.run([*SNAKEMAKE, "-s", str(REPO / "Snakefile"), *args], capture_output=True, text=True, cwd=cwd)
+def assert_mesh(path):
+    """A triangle mesh that trimesh loads, with faces and finite vertices."""
+    import trimesh
+
+    mesh = trimesh.load(path, force="mesh")
+    assert len(mesh.faces) > 0 and len(mesh.vertices) > 0, path
+    assert np.isfinite(mesh.vertices).all(), path
+    return mesh
 
 
-def write_config(tmp_path, **overrides):
-    config = {"preset": "cpu", "results": str(tmp_path / "results"), "methods": ["oracle"],
-              "scenes": {"tiny": {"synthetic": {"kind": "object", "views": 12, "width": 160, "height": 120}}},
-              "mesh": {"coarsen": 8}}
-    config.update(overrides)
-    path = tmp_path / "config.yaml"
-    path.write_text(yaml.safe_dump(config))
-    return path
+def assert_maps(folder, scene, previews: bool = True) -> None:
+    """Per-view maps (``{view}.npz``) for every camera of ``scene``: depth and confidence of
+    the camera's shape, normals (H, W, 3), all finite; depth ≥ 0, confidence in [0, 1],
+    some confident pixels, with a positive depth on every confident pixel; the PNG preview
+    of the depth beside each (``previews``)."""
+    from eve3d.maps import load_maps
+
+    assert sorted(f.stem for f in folder.glob("*.npz")) == sorted(c.view_id for c in scene.cameras), folder
+    for cam in scene.cameras:
+        m = load_maps(folder / f"{cam.view_id}.npz")
+        assert {"depth", "confidence", "normal"} <= set(m), (folder, cam.view_id, set(m))
+        depth, conf, normal = m["depth"], m["confidence"], m["normal"]
+        assert depth.shape == conf.shape == (cam.height, cam.width) and normal.shape == (cam.height, cam.width, 3)
+        assert np.isfinite(depth).all() and np.isfinite(conf).all() and np.isfinite(normal).all()
+        assert depth.min() >= 0 and 0 <= conf.min() and conf.max() <= 1
+        assert (conf >= 0.5).any() and (depth[conf >= 0.5] > 0).all(), (folder, cam.view_id)
+        assert np.linalg.norm(normal, axis=-1).max() <= 1 + 1e-4
+        if previews:
+            assert (folder / f"{cam.view_id}.depth.png").is_file(), (folder, cam.view_id)
+
+
+def assert_gaussians(path, count: int) -> None:
+    """A Gaussian model PLY that loads, with ``count`` Gaussians (as its metrics say), finite."""
+    from eve3d.gaussians import GaussianModel
+
+    model = GaussianModel.load_ply(path)
+    assert len(model) == count > 0, path
+    assert all(np.isfinite(v.detach().numpy()).all() for v in model.params.values()), path
+
+
+def assert_mesh_metrics(path, scene: str, method: str) -> dict:
+    """evaluate (synthetic protocol): metrics.json names the scene and method, with a finite
+    F-score, precision and recall in [0, 1] and finite, non-negative distances."""
+    m = json.loads(path.read_text())
+    assert m["protocol"] == "synthetic" and m["scene"] == scene and m["method"] == method
+    for key in ("fscore", "precision", "recall"):
+        assert math.isfinite(m[key]) and 0 <= m[key] <= 1, (path, key, m[key])
+    for key in ("accuracy", "completeness", "chamfer", "tau"):
+        assert math.isfinite(m[key]) and m[key] >= 0, (path, key, m[key])
+    assert m["tau"] > 0 and m["chamfer"] == pytest.approx((m["accuracy"] + m["completeness"]) / 2)
+    return m
 
 
 def test_default_config_dry_run_lists_every_stage(tmp_path):
@@ -112,6 +164,40 @@ def test_tiny_training_run(tmp_path):
         assert (results / f"tiny/{method}/depth/000.npz").exists()
         assert (results / f"tiny/{method}/previews/000.depth.png").exists()
     assert not list(results.glob("tiny/*/checkpoint.pt"))  # removed once a stage's outputs exist
+    # What every rule wrote, and that it is well-formed.
+    scenes = {}
+    for name in ("tiny", "tiny-nvs"):  # synth
+        assert_synth_input(results / name / "input", 12, 160, 120)
+        scenes[name] = load_scene(results / name / "input")
+        pre = json.loads(layout.train_metrics(name, PRETRAIN).read_text())  # pretrain
+        assert pre["iterations"] == 80 and math.isfinite(pre["train"]["psnr"])
+        assert_gaussians(results / f"{name}/pretrain/point_cloud.ply", pre["gaussians"])
+    scene = scenes["tiny"]
+    assert all(isinstance(v, int) and 0 <= v <= 255 for v in tone) and tone == sorted(tone)
+    pairs = json.loads((results / "tiny/stereo/pairs.json").read_text())  # stereo_render
+    assert sorted(pairs["views"]) == sorted(c.view_id for c in scene.cameras)
+    for cam in scene.cameras:
+        pair = pairs["views"][cam.view_id]
+        assert pair["baseline"] > 0 and 0 <= pair["min_disparity"] < pair["max_disparity"] and pair["margin"] >= 0
+        # the right view extends ``margin`` columns to the left of the photo's frame
+        assert Image.open(results / f"tiny/stereo/right/{cam.view_id}.png").size == (cam.width + pair["margin"],
+                                                                                    cam.height)
+    assert_maps(results / "tiny/priors/sgbm", scene)  # stereo_depth
+    assert_maps(results / "tiny/priors/oracle", scene)
+    for name, method in (("tiny", "3dgs"), ("tiny", "pgsr"), ("tiny", "eve3d"), ("tiny-nvs", "3dgs")):  # joint
+        out = results / name / method
+        trained = json.loads((out / "train_metrics.json").read_text())
+        assert trained["method"] == method and math.isfinite(trained["train"]["psnr"])
+        assert_gaussians(out / "point_cloud.ply", trained["gaussians"])
+        assert_maps(out / "depth", scenes[name])
+    assert_maps(results / "tiny/eve3d/priors", scene)  # eve3d's final D̂
+    assert all((results / f"tiny/eve3d/priors/{c.view_id}.compare.png").is_file() for c in scene.cameras)
+    summary = {(row["scene"], row["method"]): row for row in csv.DictReader(open(results / "summary.csv"))}
+    for method in ("3dgs", "eve3d", "pgsr", "stereo-tsdf"):  # mesh, evaluate; summary = the metrics
+        assert_mesh(results / f"tiny/{method}/mesh.ply")
+        m = assert_mesh_metrics(results / f"tiny/{method}/metrics.json", "tiny", method)
+        assert float(summary["tiny", method]["fscore"]) == pytest.approx(m["fscore"])
+    assert math.isfinite(nvs["psnr"]) and float(summary["tiny-nvs", "3dgs"]["psnr"]) == pytest.approx(nvs["psnr"])
 
 
 def test_tiny_run_then_rerun_one_stage(tmp_path):
@@ -123,6 +209,11 @@ def test_tiny_run_then_rerun_one_stage(tmp_path):
     assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "oracle")]
     assert float(rows[0]["fscore"]) > 0.5
     assert float(rows[0]["depth_signed_error"]) == 0 and float(rows[0]["depth_error"]) == 0  # fused the exact depth
+    assert_synth_input(results / "tiny/input", 12, 160, 120)
+    assert_maps(results / "tiny/priors/oracle", load_scene(results / "tiny/input"))
+    assert_mesh(results / "tiny/oracle/mesh.ply")
+    m = assert_mesh_metrics(results / "tiny/oracle/metrics.json", "tiny", "oracle")
+    assert float(rows[0]["fscore"]) == pytest.approx(m["fscore"])
     mesh_time = (results / "tiny/oracle/mesh.ply").stat().st_mtime_ns
     prior_time = (results / "tiny/priors/oracle/000.npz").stat().st_mtime_ns
     # --forcerun reruns one stage and what depends on it, nothing upstream.
@@ -164,7 +255,9 @@ def test_oracle_scores_near_perfectly_on_scenes_brought_by_a_user(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     results = tmp_path / "results"
     for kind in scenes:
-        m = json.loads((results / kind / "oracle" / "metrics.json").read_text())
+        assert_maps(results / kind / "priors/oracle", load_scene(tmp_path / kind))
+        assert_mesh(results / kind / "oracle/mesh.ply")
+        m = assert_mesh_metrics(results / kind / "oracle/metrics.json", kind, "oracle")
         assert m["protocol"] == "synthetic" and m["fscore"] >= 0.98, (kind, m)
         assert "visible-GT bounding-box diagonal" in m["tau_rule"]
     vase = json.loads((results / "vase/oracle/metrics.json").read_text())
@@ -186,8 +279,6 @@ def test_scene_without_ground_truth_is_refused_before_any_job(tmp_path, object_d
 def test_dry_run_of_dtu_and_nvs_scenes(tmp_path, object_scene, object_dataset):
     """A DTU scan (default protocol dtu; no GT mesh, so no oracle) and a COLMAP scene scored
     on held-out views (protocol nvs; trained methods only, held out in training)."""
-    from tests.test_scene_io import dtu_scale_mat, write_dtu_layout
-
     scan = tmp_path / "scan1"
     write_dtu_layout(object_scene, scan, dtu_scale_mat())
     for name in ("stl001_total.ply", "ObsMask1_10.mat", "Plane1.mat"):
