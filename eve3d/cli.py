@@ -415,13 +415,16 @@ def _add_training_parsers(sub) -> None:
 
 def _add_mesh_parsers(sub) -> None:
     from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS
+    from typing import get_args
+
+    from eve3d.scene import SceneKind
     from eve3d.settings import EvalSettings, MeshSettings
 
     s = _stage(sub, "mesh", _cmd_mesh, "TSDF-fuse per-view depth maps into mesh.ply", (MeshSettings, "mesh"))
     s.add_argument("--scene", required=True)
     s.add_argument("--depth", required=True, help="folder of {view}.npz depth maps")
     s.add_argument("--out", required=True, help="mesh file to write (.ply)")
-    s.add_argument("--kind", choices=["object", "scene"], help="override the scene kind")
+    s.add_argument("--kind", choices=get_args(SceneKind), help="override the scene kind")
     s = _stage(sub, "evaluate", _cmd_evaluate, "a reconstruction vs ground truth → metrics.json",
                (EvalSettings, "evaluate"), (MeshSettings, "mesh", ("min_confidence",)))
     s.description += " Protocols: " + "; ".join(f"{p.name}: {p.summary}" for p in PROTOCOLS.values())
