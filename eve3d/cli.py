@@ -195,6 +195,17 @@ def _cmd_bench(a: argparse.Namespace) -> None:
     print(bench.rasterizer_json(rows) if a.json else bench.format_rasterizer_table(rows))
 
 
+def _cmd_bench_training(a: argparse.Namespace) -> None:
+    from eve3d import bench
+
+    for name in ("steps", "warmup", "gaussians"):
+        if getattr(a, name) < (0 if name == "warmup" else 1):
+            raise Eve3dError(f"--{name} {getattr(a, name)}: expected a positive number")
+    report = bench.bench_training(a.stages or bench.TRAINING_STAGES, a.steps, a.warmup, a.gaussians, _config(a),
+                                  a.start)
+    print(json.dumps(report, indent=2) if a.json else bench.format_training_table(report))
+
+
 def _cmd_bench_stereo(a: argparse.Namespace) -> None:
     from eve3d import bench
 
@@ -331,16 +342,21 @@ def _settings_flags(group, cls: type, section: str, only: tuple[str, ...] = (), 
         group.add_argument(flag(key.name), **kw)
 
 
-def _stage(sub, name: str, func, help: str, *settings: tuple) -> argparse.ArgumentParser:
-    """A stage's subcommand: ``--config``, ``--set`` and the flags of ``settings`` (tuples of
-    ``_settings_flags``' arguments after the parser)."""
-    s = sub.add_parser(name, help=help, description=help + ". Settings, low to high: the settings classes' "
-                       "defaults, the preset, --config, --set, the flags (config/README.md).")
+def _config_arguments(s: argparse.ArgumentParser) -> None:
+    """``--config`` and ``--set``: the settings of a job (``_config``)."""
     s.add_argument("--config", help="a workflow config file or an inline YAML/JSON mapping of sections, merged over "
                                     "its preset (cpu unless it names one; preset: null for none)")
     s.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override one setting, e.g. --set mesh.voxel=0.01 (repeatable; over --config, under the "
                         "flags)")
+
+
+def _stage(sub, name: str, func, help: str, *settings: tuple) -> argparse.ArgumentParser:
+    """A stage's subcommand: ``--config``, ``--set`` and the flags of ``settings`` (tuples of
+    ``_settings_flags``' arguments after the parser)."""
+    s = sub.add_parser(name, help=help, description=help + ". Settings, low to high: the settings classes' "
+                       "defaults, the preset, --config, --set, the flags (config/README.md).")
+    _config_arguments(s)
     groups: dict[str, Any] = {}
     for cls, section, *which in settings:
         if section not in groups:
@@ -456,6 +472,19 @@ def _add_bench_parser(sub) -> None:
     r.add_argument("--repeats", type=int, default=5, help="timed runs per size (median; one more warms up)")
     r.add_argument("--json", action="store_true", help="machine-readable output")
     r.set_defaults(func=_cmd_bench)
+    tr = what.add_parser("training", help="mean time of each part of a training step (projection, rasteriser, "
+                                          "losses, their backward, optimiser, densification) on the generated object")
+    tr.add_argument("--stages", nargs="+", metavar="STAGE",
+                    help="pretrain and/or trained methods (default: pretrain pgsr eve3d)")
+    tr.add_argument("--steps", type=int, default=30, help="timed steps per stage (mean)")
+    tr.add_argument("--warmup", type=int, default=3, help="untimed steps before them")
+    tr.add_argument("--gaussians", type=int, default=35_000,
+                    help="Gaussians of the initial model (sparse points, or eve3d's prior points)")
+    tr.add_argument("--start", type=int, help="step of the schedule to start from (default: where every joint-stage "
+                                              "term is on, max of dn_from, mv_from, prior_from, joint_from)")
+    _config_arguments(tr)
+    tr.add_argument("--json", action="store_true", help="machine-readable output")
+    tr.set_defaults(func=_cmd_bench_training)
     st = what.add_parser("stereo", help="sgbm on the Motorcycle pair; priors of synthetic scenes vs exact depth")
     st.add_argument("--priors", nargs="*", default=[], metavar="DIR",
                     help="prior folders (results/{scene}/priors/{backend}) to score against the oracle folder beside them")

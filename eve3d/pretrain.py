@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import asdict
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ from eve3d.render import render_model
 from eve3d.scene import Scene
 from eve3d.settings import PretrainSettings, RenderSettings
 from eve3d.stereo import TONE_FILE, scene_tone_curve
-from eve3d.training import Trainer, initial_points
+from eve3d.training import LossTerms, Trainer, initial_points
 from eve3d.view_report import view_metrics, write_previews
 from eve3d.views import View
 
@@ -67,12 +68,23 @@ def blend_weights(model: GaussianModel, views: list[View], rendering: RenderSett
     return total
 
 
-def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
-    """Run the stage; returns the held-out metrics (also written to ``train_metrics.json``)."""
+@dataclass
+class PretrainRun:
+    """A pretrain stage ready to run: ``trainer.run(loss, events)``."""
+
+    trainer: Trainer
+    loss: LossTerms
+    events: Callable[[int], None]
+    """Re-initialisation and simplification, on their steps."""
+    tone: np.ndarray
+    """The scene's equalisation curve (256,) the photos are fitted through."""
+
+
+def setup_pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> PretrainRun:
+    """The trainer with its initial Gaussians, the photometric loss and the stage's events."""
     s = settings
-    out_dir = Path(out_dir)
     tone = scene_tone_curve(scene, s.equalize)
-    trainer = Trainer(scene, s, out_dir, "pretrain", tone)
+    trainer = Trainer(scene, s, Path(out_dir), "pretrain", tone)
     state, views = trainer.state, trainer.views
     rng = np.random.default_rng(s.seed)
     points, colors = initial_points(scene, s.init_random_points, rng)
@@ -96,7 +108,17 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
             state.remove_gaussians(drop)
             print(f"\npretrain: step {step}: simplified to {len(trainer.model)} Gaussians", file=sys.stderr)
 
-    trainer.run(trainer.photometric_terms, events)
+    return PretrainRun(trainer, trainer.photometric_terms, events, tone)
+
+
+def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
+    """Run the stage; returns the held-out metrics (also written to ``train_metrics.json``)."""
+    s = settings
+    out_dir = Path(out_dir)
+    run = setup_pretrain(scene, out_dir, s)
+    trainer, tone = run.trainer, run.tone
+    views = trainer.views
+    trainer.run(run.loss, run.events)
     model = trainer.model
     model.save_ply(out_dir / MODEL_FILE)
     with atomic_path(out_dir / TONE_FILE) as tmp:

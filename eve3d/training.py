@@ -101,14 +101,17 @@ class Trainer:
             st.order = [self.views.train_ids[i] for i in perm]
         return self.views[st.order.pop()]
 
-    def run(self, loss_terms: LossTerms, events: Callable[[int], None] | None = None) -> None:
+    def run(self, loss_terms: LossTerms, events: Callable[[int], None] | None = None,
+            until: int | None = None) -> None:
         """Optimise until ``iterations``. ``loss_terms(step, view, out)`` returns the weighted
         terms whose sum is minimised; ``events(step)`` runs after each step (re-initialisation,
-        simplification). Resumes from the checkpoint in ``work_dir`` when it matches."""
+        simplification). Resumes from the checkpoint in ``work_dir`` when it matches.
+        ``until``: stop earlier, after that many steps (a benchmark's window of steps)."""
         st = self.state
         self.checkpoint.resume(st)
+        end = self.s.iterations if until is None else min(until, self.s.iterations)
         progress = _Progress(self.name, self.s.iterations, st.step)
-        while st.step < self.s.iterations:
+        while st.step < end:
             step = st.step
             st.set_means_lr(self.means_lr(step))
             view = self.next_view()
