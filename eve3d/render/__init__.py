@@ -2,8 +2,8 @@
 
 ``render`` projects and composites Gaussians from one camera with either backend:
 
-- ``cpu``: our tile-based compositing in C++ with OpenMP (compiled on first use), float32
-  or float64.
+- ``cpu``: our fused projection and tile-based compositing in C++ with OpenMP (compiled on
+  first use), float32 or float64.
 - ``torch``: our sparse pixel–Gaussian pair rasteriser in plain PyTorch: any device, no
   compiler; the fallback when ``cpu`` cannot be built, and its independent cross-check.
 - ``gsplat``: ``gsplat.rasterization`` on CUDA (``pip install .[cuda]``), with the planar
