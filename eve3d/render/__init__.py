@@ -2,8 +2,8 @@
 
 ``render`` projects and composites Gaussians from one camera with either backend:
 
-- ``cpu``: our tile-based compositing in C++ with OpenMP (compiled on first use), float32
-  or float64.
+- ``cpu``: our fused projection and tile-based compositing in C++ with OpenMP (compiled on
+  first use), float32 or float64.
 - ``torch``: our sparse pixel–Gaussian pair rasteriser in plain PyTorch: any device, no
   compiler; the fallback when ``cpu`` cannot be built, and its independent cross-check.
 - ``gsplat``: ``gsplat.rasterization`` on CUDA (``pip install .[cuda]``), with the planar
@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from eve3d.render.projection import CameraTensors, plane_features, project, quat_to_rotmat
+from eve3d.render.projection import CameraTensors, Projected, plane_features, project_gaussians, quat_to_rotmat
 from eve3d.scene import Camera, Eve3dError
 from eve3d.settings import RENDER_BACKENDS, RenderSettings
 
@@ -95,14 +95,21 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     n_colors = colors.shape[1]
     if background is None:
         background = torch.zeros(n_colors, dtype=means.dtype, device=means.device)
-    rotmats = quat_to_rotmat(quats)
-    means_c = means @ cam.R.T + cam.t
-    normals, distances = plane_features(means_c, rotmats, scales, cam.R)
-    parts = [colors, normals, distances[:, None], means_c[:, 2:3]] + ([extras] if extras is not None else [])
+    if backend == "gsplat":  # gsplat projects; only the planes are ours
+        rotmats = quat_to_rotmat(quats)
+        means_c = means @ cam.R.T + cam.t
+        normals, distances = plane_features(means_c, rotmats, scales, cam.R)
+        proj, cam_z = None, means_c[:, 2]
+    else:
+        from eve3d.render import cpu
+
+        project = cpu.project if backend == "cpu" else project_gaussians
+        proj, opacities, normals, distances = project(means, quats, scales, opacities, cam, near, far, antialiased)
+        cam_z = proj.depths
+    parts = [colors, normals, distances[:, None], cam_z[:, None]] + ([extras] if extras is not None else [])
     features = torch.cat(parts, dim=1)
     image, alpha, radii, means2d, absgrad_buf, n_pairs = _rasterize(
-        backend, means, quats, scales, opacities, features, rotmats, means_c, cam, near, far, absgrad, antialiased,
-        max_pairs)
+        backend, proj, means, quats, scales, opacities, features, cam, near, far, absgrad, antialiased, max_pairs)
 
     rgb = image[..., :n_colors] + (1 - alpha)[..., None] * background
     normal = image[..., n_colors:n_colors + 3]
@@ -121,18 +128,17 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
                         radii=radii, means2d=means2d, absgrad=absgrad_buf, n_pairs=n_pairs, backend=backend)
 
 
-def _rasterize(backend: str, means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
-               opacities: torch.Tensor, features: torch.Tensor, rotmats: torch.Tensor, means_c: torch.Tensor,
-               cam: CameraTensors, near: float, far: float, absgrad: bool, antialiased: bool, max_pairs: int
+def _rasterize(backend: str, proj: Projected | None, means: torch.Tensor, quats: torch.Tensor,
+               scales: torch.Tensor, opacities: torch.Tensor, features: torch.Tensor, cam: CameraTensors, near: float,
+               far: float, absgrad: bool, antialiased: bool, max_pairs: int
                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None, int | None]:
     """The backend's part of :func:`render`: composited features (H, W, F), alpha (H, W),
-    radii, the 2D means (their gradient retained), the AbsGS buffer and the pair count."""
-    if backend in ("cpu", "torch"):
+    radii, the 2D means (their gradient retained), the AbsGS buffer and the pair count.
+    ``cpu`` and ``torch`` get the projection ``proj`` and the opacities to composite (already
+    × compensation when ``antialiased``); gsplat projects itself."""
+    if proj is not None:
         from eve3d.render import cpu, pairs
 
-        proj = project(means_c, rotmats, scales, opacities, cam, near, far)
-        if antialiased:
-            opacities = opacities * proj.compensation
         means2d = proj.means2d
         if means2d.requires_grad:
             means2d.retain_grad()

@@ -1,6 +1,10 @@
-"""``cpu`` backend: tile-based compositing in C++ (``csrc/rasterize.cpp``), OpenMP threads.
+"""``cpu`` backend: the projection (``csrc/projection.cpp``) and tile-based compositing
+(``csrc/rasterize.cpp``) in C++, each with an analytic backward, on OpenMP threads.
 
-Projection stays in PyTorch (autograd); only the per-pixel loops are native. The extension
+The projection fuses what :func:`eve3d.render.projection.project_gaussians` does in many
+small PyTorch operations (with their autograd graph, about a third of a render's forward and
+backward at training sizes); that function stays the reference the tests compare this one
+with. The extension
 is compiled on first use with ``torch.utils.cpp_extension`` (about 40 s, then cached in
 ``$TORCH_EXTENSIONS_DIR`` or ``~/.cache/torch_extensions``). Memory is the image, the tile
 lists and one gradient buffer per thread: no per-pair storage, so it stays bounded at any size.
@@ -14,10 +18,10 @@ from pathlib import Path
 
 import torch
 
-from eve3d.render.projection import Projected, front_to_back
+from eve3d.render.projection import CameraTensors, Projected, front_to_back
 from eve3d.scene import Eve3dError
 
-SOURCE = Path(__file__).parent / "csrc" / "rasterize.cpp"
+SOURCES = [Path(__file__).parent / "csrc" / name for name in ("rasterize.cpp", "projection.cpp")]
 
 
 @functools.lru_cache(maxsize=1)
@@ -28,7 +32,7 @@ def extension():
     # torch builds with ninja; the pip-installed one sits beside this interpreter.
     os.environ["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
     print("eve3d: loading the C++ rasteriser (compiled once, about 40 s, then cached)", file=sys.stderr)
-    return load(name="eve3d_rasterize", sources=[str(SOURCE)], extra_cflags=["-O3", "-fopenmp"],
+    return load(name="eve3d_rasterize", sources=[str(p) for p in SOURCES], extra_cflags=["-O3", "-fopenmp"],
                 extra_ldflags=["-fopenmp"], verbose=False)
 
 
@@ -42,6 +46,39 @@ def available() -> bool:
               "using the slower pure-PyTorch backend", file=sys.stderr)
         return False
     return True
+
+
+def project(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+            cam: CameraTensors, near: float = 0.01, far: float = 1e10, antialiased: bool = False
+            ) -> tuple[Projected, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`eve3d.render.projection.project_gaussians` in C++: the projection, the
+    opacities the rasteriser uses, camera-space normals (N, 3) and plane distances (N,)."""
+    if means.device.type != "cpu":
+        raise Eve3dError(f"render backend 'cpu' needs CPU tensors, got {means.device}; use 'gsplat' or 'torch'")
+    means2d, conics, depths, radii, compensation, normals, distances, opac = _FusedProjection.apply(
+        means, quats, scales, opacities, cam, near, far, antialiased)
+    return Projected(means2d, conics, depths, radii, compensation), opac, normals, distances
+
+
+class _FusedProjection(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, cam, near, far, antialiased):
+        camera = (cam.R.to(means.dtype), cam.t.to(means.dtype), cam.fx, cam.fy, cam.cx, cam.cy, cam.width,
+                  cam.height, near)
+        outputs = extension().project_forward(means.detach(), quats.detach(), scales.detach(), opacities.detach(),
+                                              *camera, far, antialiased)
+        ctx.save_for_backward(means, quats, scales, opacities)
+        ctx.camera, ctx.antialiased = camera, antialiased
+        ctx.mark_non_differentiable(outputs[3])  # radii
+        return tuple(outputs)
+
+    @staticmethod
+    def backward(ctx, g_means2d, g_conics, g_depths, _, g_compensation, g_normals, g_distances, g_opac):
+        means, quats, scales, opacities = ctx.saved_tensors
+        grads = extension().project_backward(means.detach(), quats.detach(), scales.detach(), opacities.detach(),
+                                             *ctx.camera, ctx.antialiased, g_means2d, g_conics, g_depths,
+                                             g_compensation, g_normals, g_distances, g_opac)
+        return (*grads, None, None, None, None)
 
 
 def rasterize(proj: Projected, opacities: torch.Tensor, features: torch.Tensor, width: int, height: int,

@@ -147,6 +147,21 @@ def project(means_c: torch.Tensor, rotmats: torch.Tensor, scales: torch.Tensor, 
     return Projected(means2d, conics, z, radii, compensation)
 
 
+def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+                      cam: CameraTensors, near: float = 0.01, far: float = 1e10, antialiased: bool = False
+                      ) -> tuple[Projected, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Everything the rasterisers need per Gaussian, from world-space parameters: the
+    projection, the opacities to composite (× compensation when ``antialiased``), and the
+    camera-space normals (N, 3) and plane distances (N,).
+
+    The reference (autograd) that the ``cpu`` backend's fused C++ projection reproduces."""
+    rotmats = quat_to_rotmat(quats)
+    means_c = means @ cam.R.T + cam.t
+    normals, distances = plane_features(means_c, rotmats, scales, cam.R)
+    proj = project(means_c, rotmats, scales, opacities, cam, near, far)
+    return proj, opacities * proj.compensation if antialiased else opacities, normals, distances
+
+
 def front_to_back(proj: Projected, width: int, height: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Indices of the visible Gaussians sorted by depth (so that their position in the list
     is the depth rank), and their inclusive pixel boxes (V, 4) x0, y0, x1, y1 (int64): the

@@ -6,6 +6,8 @@
 // division as gsplat does, and accumulates gradients in per-thread buffers.
 #include <torch/extension.h>
 
+#include "projection.h"
+
 #include <algorithm>
 #include <cmath>
 #include <vector>
@@ -220,4 +222,6 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("forward", &forward, "tile-based Gaussian compositing (forward)");
     m.def("backward", &backward, "tile-based Gaussian compositing (backward)");
+    m.def("project_forward", &project_forward, "fused EWA projection and PGSR planes (forward)");
+    m.def("project_backward", &project_backward, "fused EWA projection and PGSR planes (backward)");
 }
