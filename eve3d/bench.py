@@ -524,6 +524,42 @@ class StageTiming:
     """Per step, the bench's walk of the graph before each backward: left out of ``step_ms``."""
 
 
+@contextlib.contextmanager
+def _instrumented(trainer: Trainer, profiler: StepProfiler, counts: dict, ticks: list[float]):
+    """``trainer``'s render, the backends' entries, the optimiser step, densification and
+    ``Tensor.backward`` wrapped with ``profiler``'s timers for the duration (see
+    :func:`profile_steps`); ``counts`` and ``ticks`` receive the renders, pairs and steps."""
+    import torch
+
+    from eve3d.render import cpu, cuda, pairs
+
+    st = trainer.state
+    optimizer_step = profiler.timed("optimizer", st.optimizer_step)
+
+    def counted(render: Callable) -> Callable:
+        def wrapper(*args, **kwargs):
+            out = render(*args, **kwargs)
+            counts["renders"] += 1
+            counts["pairs"] += out.n_pairs or 0
+            return out
+        return wrapper
+
+    def counted_step() -> None:
+        counts["gaussians"] += len(trainer.model)
+        ticks.append(time.perf_counter() - profiler.overhead)
+        optimizer_step()
+
+    with contextlib.ExitStack() as stack:
+        patch = lambda target, name, new: stack.enter_context(mock.patch.object(target, name, new))  # noqa: E731
+        patch(trainer, "render", counted(profiler.timed("projection", trainer.render)))
+        for module, name in ((cpu, "rasterize"), (pairs, "rasterize"), (cuda, "rasterize_gsplat")):
+            patch(module, name, profiler.timed("rasterize", getattr(module, name)))
+        patch(st, "optimizer_step", counted_step)
+        patch(st, "densify", profiler.timed("densify", st.densify))
+        patch(torch.Tensor, "backward", profiler.timed_backward(torch.Tensor.backward))
+        yield
+
+
 def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], None] | None, start: int, warmup: int,
                   steps: int) -> StageTiming:
     """Run ``warmup`` then ``steps`` steps of ``trainer`` from step ``start`` of its schedule
@@ -548,46 +584,21 @@ def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], Non
       This is the boundary rule "losses until the gradient reaches the render outputs,
       rasteriser until it reaches the projection's outputs, projection until the inputs",
       applied to every render of the step in turn.
-    - other: the step's wall time less the parts (view choice, the loss sum and its check,
-      the progress bar, the events).
+    - other: the step's wall time less the parts (view choice, loss sum, progress bar, events).
 
     On CUDA every boundary synchronises the device, which serialises it: the parts then
     add up, but the step is slower than an unsynchronised one.
     """
     import torch
 
-    from eve3d.render import cpu, cuda, pairs
-
     st = trainer.state
     cuda_device = trainer.device.type == "cuda"
     profiler = StepProfiler(torch.cuda.synchronize if cuda_device else lambda: None)
     counts = {"gaussians": 0, "renders": 0, "pairs": 0}
     ticks: list[float] = []  # when each timed step reached the optimiser (the bench's own time left out)
-
-    def counted(render: Callable) -> Callable:
-        def wrapper(*args, **kwargs):
-            out = render(*args, **kwargs)
-            counts["renders"] += 1
-            counts["pairs"] += out.n_pairs or 0
-            return out
-        return wrapper
-
-    def counted_step() -> None:
-        counts["gaussians"] += len(trainer.model)
-        ticks.append(time.perf_counter() - profiler.overhead)
-        optimizer_step()
-
-    optimizer_step = profiler.timed("optimizer", st.optimizer_step)
     st.step = start
     st.densify_stats["birth"].fill_(start)  # the first model is born here: no pruning by views seen before
-    with contextlib.ExitStack() as stack:
-        patch = lambda target, name, new: stack.enter_context(mock.patch.object(target, name, new))  # noqa: E731
-        patch(trainer, "render", counted(profiler.timed("projection", trainer.render)))
-        for module, name in ((cpu, "rasterize"), (pairs, "rasterize"), (cuda, "rasterize_gsplat")):
-            patch(module, name, profiler.timed("rasterize", getattr(module, name)))
-        patch(st, "optimizer_step", counted_step)
-        patch(st, "densify", profiler.timed("densify", st.densify))
-        patch(torch.Tensor, "backward", profiler.timed_backward(torch.Tensor.backward))
+    with _instrumented(trainer, profiler, counts, ticks):
         timed_loss = profiler.timed("losses", loss)
         trainer.run(timed_loss, events, until=start + warmup)
         profiler.reset()
