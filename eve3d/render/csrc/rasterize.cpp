@@ -96,6 +96,62 @@ inline Splat<scalar_t> splat(const scalar_t* m, const scalar_t* c, const scalar_
     return s;
 }
 
+// One tile's list entry with the conservative footprint used to skip pixels: the ellipse
+// sigma <= K, where K exceeds the cutoff by a margin (1% + 0.01), in double. Every pixel
+// whose centre lies outside it has sigma beyond the cutoff, so the exact
+// per-pixel test would skip it anyway; inside, the per-pixel test decides as before.
+struct Entry {
+    double mx, my, a, b, c, K;
+    int64_t ylo, yhi;  // rows of the tile that may see it (inclusive; empty when ylo > yhi)
+    bool full;         // conic not positive definite: test every pixel
+};
+
+template <typename scalar_t>
+void tile_entries(const scalar_t* m, const scalar_t* c, const scalar_t* cut, const int64_t* ids, int64_t begin,
+                  int64_t end, int64_t y0, int64_t y1, std::vector<Entry>& out) {
+    out.resize(end - begin);
+    for (int64_t k = begin; k < end; ++k) {
+        const int64_t g = ids[k];
+        Entry& e = out[k - begin];
+        e.mx = m[2 * g];
+        e.my = m[2 * g + 1];
+        e.a = c[3 * g];
+        e.b = c[3 * g + 1];
+        e.c = c[3 * g + 2];
+        e.K = std::max((double)cut[g], 0.0) * 1.01 + 0.01;
+        const double det = e.a * e.c - e.b * e.b;
+        e.full = !(e.a > 0 && det > 0 && std::isfinite(det) && std::isfinite(e.mx) && std::isfinite(e.my));
+        if (e.full) {
+            e.ylo = y0;
+            e.yhi = y1 - 1;
+            continue;
+        }
+        const double ext = std::sqrt(2 * e.K * e.a / det);
+        e.ylo = std::max(y0, (int64_t)std::ceil(e.my - ext - 0.5 - 1e-3));
+        e.yhi = std::min(y1 - 1, (int64_t)std::floor(e.my + ext - 0.5 + 1e-3));
+    }
+}
+
+// Columns [x_lo, x_hi] of row py that may see entry e, clipped to [x0, x1); false if none.
+inline bool row_span(const Entry& e, int64_t py, int64_t x0, int64_t x1, int64_t& x_lo, int64_t& x_hi) {
+    if (py < e.ylo || py > e.yhi) return false;
+    if (e.full) {
+        x_lo = x0;
+        x_hi = x1 - 1;
+        return true;
+    }
+    const double dy = py + 0.5 - e.my;
+    const double disc = e.b * e.b * dy * dy - e.a * (e.c * dy * dy - 2 * e.K);
+    if (!(disc >= 0)) return false;
+    const double sq = std::sqrt(disc);
+    x_lo = std::max(x0, (int64_t)std::ceil(e.mx + (-e.b * dy - sq) / e.a - 0.5 - 1e-3));
+    x_hi = std::min(x1 - 1, (int64_t)std::floor(e.mx + (-e.b * dy + sq) / e.a - 0.5 + 1e-3));
+    return x_lo <= x_hi;
+}
+
+// Each pixel still takes its tile's list in order with the same arithmetic as a plain
+// per-pixel loop; a row of the tile walks the list together, so that an entry's footprint
+// is computed once per row and only the pixels it may cover are tested.
 template <typename scalar_t>
 int64_t forward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
                      int64_t V, const int64_t* off, const int64_t* ids, int64_t tiles, int64_t width, int64_t height,
@@ -103,28 +159,48 @@ int64_t forward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, co
     const int64_t tiles_x = (width + TILE - 1) / TILE;
     const auto cut = sigma_cutoffs(o, V);
     int64_t n_pairs = 0;
-#pragma omp parallel for schedule(dynamic) reduction(+ : n_pairs)
-    for (int64_t t = 0; t < tiles; ++t) {
-        const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
-        for (int64_t py = y0; py < std::min(y0 + TILE, height); ++py) {
-            for (int64_t px = x0; px < std::min(x0 + TILE, width); ++px) {
-                const int64_t p = py * width + px;
-                scalar_t T = 1;
-                int32_t last = 0;
-                for (int64_t k = off[t]; k < off[t + 1]; ++k) {
-                    const int64_t g = ids[k];
-                    const auto s = splat(m, c, o, cut.data(), g, px, py);
-                    if (s.skip) continue;
-                    const scalar_t next_t = T * (1 - s.alpha);
-                    if (next_t <= (scalar_t)T_MIN) break;
-                    const scalar_t w = s.alpha * T;
-                    for (int64_t ch = 0; ch < C; ++ch) img[p * C + ch] += w * f[g * C + ch];
-                    T = next_t;
-                    last = (int32_t)(k - off[t] + 1);
-                    ++n_pairs;
+#pragma omp parallel reduction(+ : n_pairs)
+    {
+        std::vector<Entry> entries;
+#pragma omp for schedule(dynamic)
+        for (int64_t t = 0; t < tiles; ++t) {
+            const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
+            const int64_t x1 = std::min(x0 + TILE, width), y1 = std::min(y0 + TILE, height);
+            tile_entries(m, c, cut.data(), ids, off[t], off[t + 1], y0, y1, entries);
+            const int64_t n = off[t + 1] - off[t];
+            for (int64_t py = y0; py < y1; ++py) {
+                scalar_t T[TILE];
+                int32_t last[TILE];
+                bool done[TILE];
+                for (int64_t i = 0; i < TILE; ++i) T[i] = 1, last[i] = 0, done[i] = false;
+                int64_t live = x1 - x0;
+                for (int64_t j = 0; j < n && live > 0; ++j) {
+                    int64_t xa, xb;
+                    if (!row_span(entries[j], py, x0, x1, xa, xb)) continue;
+                    const int64_t g = ids[off[t] + j];
+                    for (int64_t px = xa; px <= xb; ++px) {
+                        const int64_t i = px - x0;
+                        if (done[i]) continue;
+                        const auto s = splat(m, c, o, cut.data(), g, px, py);
+                        if (s.skip) continue;
+                        const scalar_t next_t = T[i] * (1 - s.alpha);
+                        if (next_t <= (scalar_t)T_MIN) {
+                            done[i] = true;
+                            --live;
+                            continue;
+                        }
+                        const scalar_t w = s.alpha * T[i];
+                        const int64_t p = py * width + px;
+                        for (int64_t ch = 0; ch < C; ++ch) img[p * C + ch] += w * f[g * C + ch];
+                        T[i] = next_t;
+                        last[i] = (int32_t)(j + 1);
+                        ++n_pairs;
+                    }
                 }
-                tf[p] = T;
-                used[p] = last;
+                for (int64_t px = x0; px < x1; ++px) {
+                    tf[py * width + px] = T[px - x0];
+                    used[py * width + px] = last[px - x0];
+                }
             }
         }
     }
@@ -139,39 +215,64 @@ void backward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, cons
     const int64_t K = 8 + C;  // per Gaussian: mean2d (2), conic (3), opacity, features (C), |mean2d| (2)
     const int64_t tiles_x = (width + TILE - 1) / TILE;
     const auto cut = sigma_cutoffs(o, V);
-#pragma omp parallel for schedule(dynamic)
-    for (int64_t t = 0; t < tiles; ++t) {
+#pragma omp parallel
+    {
+        std::vector<Entry> entries;
+        std::vector<scalar_t> acc(K);
         scalar_t* buf = all + (int64_t)thread_id() * V * K;
-        const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
-        for (int64_t py = y0; py < std::min(y0 + TILE, height); ++py) {
-            for (int64_t px = x0; px < std::min(x0 + TILE, width); ++px) {
-                const int64_t p = py * width + px;
-                const scalar_t* G = gi + p * C;
-                scalar_t T = tf[p], behind = 0;
-                for (int64_t k = off[t] + used[p] - 1; k >= off[t]; --k) {
-                    const int64_t g = gids[k];
-                    const auto s = splat(m, c, o, cut.data(), g, px, py);
-                    if (s.skip) continue;
-                    T /= 1 - s.alpha;  // transmittance in front of g
-                    const scalar_t w = s.alpha * T;
-                    scalar_t dl_dw = ga[p];
-                    for (int64_t ch = 0; ch < C; ++ch) dl_dw += G[ch] * f[g * C + ch];
-                    scalar_t dl_dalpha = T * dl_dw - behind / (1 - s.alpha);
-                    behind += w * dl_dw;
-                    if (s.raw > (scalar_t)ALPHA_MAX) dl_dalpha = 0;  // clamped: flat
-                    const scalar_t dl_dsigma = -dl_dalpha * s.raw;
-                    const scalar_t dmx = -dl_dsigma * (c[3 * g] * s.dx + c[3 * g + 1] * s.dy);
-                    const scalar_t dmy = -dl_dsigma * (c[3 * g + 1] * s.dx + c[3 * g + 2] * s.dy);
-                    scalar_t* b = buf + g * K;
-                    b[0] += dmx;
-                    b[1] += dmy;
-                    b[2] += (scalar_t)0.5 * dl_dsigma * s.dx * s.dx;
-                    b[3] += dl_dsigma * s.dx * s.dy;
-                    b[4] += (scalar_t)0.5 * dl_dsigma * s.dy * s.dy;
-                    b[5] += dl_dalpha * s.raw / o[g];
-                    for (int64_t ch = 0; ch < C; ++ch) b[6 + ch] += w * G[ch];
-                    b[6 + C] += std::abs(dmx);
-                    b[7 + C] += std::abs(dmy);
+#pragma omp for schedule(dynamic)
+        for (int64_t t = 0; t < tiles; ++t) {
+            const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
+            const int64_t x1 = std::min(x0 + TILE, width), y1 = std::min(y0 + TILE, height);
+            tile_entries(m, c, cut.data(), gids, off[t], off[t + 1], y0, y1, entries);
+            for (int64_t py = y0; py < y1; ++py) {
+                scalar_t T[TILE], behind[TILE];
+                int64_t kmax = 0;
+                for (int64_t px = x0; px < x1; ++px) {
+                    T[px - x0] = tf[py * width + px];
+                    behind[px - x0] = 0;
+                    kmax = std::max(kmax, (int64_t)used[py * width + px]);
+                }
+                for (int64_t j = kmax - 1; j >= 0; --j) {
+                    int64_t xa, xb;
+                    if (!row_span(entries[j], py, x0, x1, xa, xb)) continue;
+                    const int64_t g = gids[off[t] + j];
+                    bool any = false;
+                    for (int64_t px = xa; px <= xb; ++px) {
+                        const int64_t p = py * width + px;
+                        if (j >= used[p]) continue;
+                        const auto s = splat(m, c, o, cut.data(), g, px, py);
+                        if (s.skip) continue;
+                        const int64_t i = px - x0;
+                        const scalar_t* G = gi + p * C;
+                        T[i] /= 1 - s.alpha;  // transmittance in front of g
+                        const scalar_t w = s.alpha * T[i];
+                        scalar_t dl_dw = ga[p];
+                        for (int64_t ch = 0; ch < C; ++ch) dl_dw += G[ch] * f[g * C + ch];
+                        scalar_t dl_dalpha = T[i] * dl_dw - behind[i] / (1 - s.alpha);
+                        behind[i] += w * dl_dw;
+                        if (s.raw > (scalar_t)ALPHA_MAX) dl_dalpha = 0;  // clamped: flat
+                        const scalar_t dl_dsigma = -dl_dalpha * s.raw;
+                        const scalar_t dmx = -dl_dsigma * (c[3 * g] * s.dx + c[3 * g + 1] * s.dy);
+                        const scalar_t dmy = -dl_dsigma * (c[3 * g + 1] * s.dx + c[3 * g + 2] * s.dy);
+                        if (!any) {
+                            std::fill(acc.begin(), acc.end(), (scalar_t)0);
+                            any = true;
+                        }
+                        acc[0] += dmx;
+                        acc[1] += dmy;
+                        acc[2] += (scalar_t)0.5 * dl_dsigma * s.dx * s.dx;
+                        acc[3] += dl_dsigma * s.dx * s.dy;
+                        acc[4] += (scalar_t)0.5 * dl_dsigma * s.dy * s.dy;
+                        acc[5] += dl_dalpha * s.raw / o[g];
+                        for (int64_t ch = 0; ch < C; ++ch) acc[6 + ch] += w * G[ch];
+                        acc[6 + C] += std::abs(dmx);
+                        acc[7 + C] += std::abs(dmy);
+                    }
+                    if (any) {
+                        scalar_t* b = buf + g * K;
+                        for (int64_t q = 0; q < K; ++q) b[q] += acc[q];
+                    }
                 }
             }
         }
