@@ -125,3 +125,25 @@ def test_means2d_keeps_its_gradient_for_densification():
     out = render(means, quats, scales, opacities, colors, cam, backend="cpu")
     out.rgb.sum().backward()
     assert out.means2d_grad is not None and out.means2d_grad[out.visible].abs().sum() > 0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_front_to_back_in_cpp_matches_pytorch(dtype):
+    """The C++ visible set, depth order (stable, ties included) and pixel boxes are the
+    PyTorch reference's, exactly."""
+    from eve3d.render.projection import front_to_back
+
+    g = torch.Generator().manual_seed(3)
+    cam = camera(dtype)
+    n = 3000
+    u = -0.2 + 1.4 * torch.rand(n, 2, generator=g, dtype=dtype)
+    z = torch.cat([0.5 + 5 * torch.rand(n - 500, generator=g, dtype=dtype), torch.full((500,), 2.0, dtype=dtype)])
+    s = torch.exp(math.log(0.003) + (math.log(0.3) - math.log(0.003)) * torch.rand(n, 3, generator=g, dtype=dtype))
+    means, quats, scales, opacities = gaussians(cam, u, z, s, g)
+    proj, _, _, _ = cpu.project(means, quats, scales, opacities, cam, NEAR)
+    visible, boxes = front_to_back(proj, cam.width, cam.height)
+    visible_cpp, boxes_cpp = cpu.extension().front_to_back(proj.radii, proj.depths, proj.means2d, cam.width,
+                                                           cam.height)
+    assert 100 < len(visible) < n
+    assert torch.equal(visible, visible_cpp)
+    assert torch.equal(boxes, boxes_cpp)

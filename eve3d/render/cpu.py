@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from eve3d.render.projection import CameraTensors, Projected, front_to_back
+from eve3d.render.projection import CameraTensors, Projected
 from eve3d.scene import Eve3dError
 
 SOURCES = [Path(__file__).parent / "csrc" / name for name in ("rasterize.cpp", "projection.cpp")]
@@ -90,8 +90,10 @@ def rasterize(proj: Projected, opacities: torch.Tensor, features: torch.Tensor, 
     """
     if features.device.type != "cpu":
         raise Eve3dError(f"render backend 'cpu' needs CPU tensors, got {features.device}; use 'gsplat' or 'torch'")
-    visible, boxes = front_to_back(proj, width, height)
-    inputs = [x[visible].contiguous() for x in (proj.means2d, proj.conics, opacities, features)]
+    visible, boxes = extension().front_to_back(proj.radii, proj.depths.detach(), proj.means2d.detach(), width, height)
+    # The C++ side reads the visible Gaussians through their indices: no gathers here, and its
+    # gradients come back for all N.
+    inputs = [x.contiguous() for x in (proj.means2d, proj.conics, opacities, features)]
     image, alpha, n_pairs = _TileComposite.apply(*inputs, boxes.cpu(), width, height, visible, absgrad)
     return image.reshape(height, width, -1), alpha.reshape(height, width), int(n_pairs)
 
@@ -100,9 +102,9 @@ class _TileComposite(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opac, feats, boxes, width, height, visible, absgrad):
         image, final_t, consumed, offsets, ids, n_pairs = extension().forward(
-            means2d.detach(), conics.detach(), opac.detach(), feats.detach(), boxes, width, height)
+            means2d.detach(), conics.detach(), opac.detach(), feats.detach(), boxes, visible, width, height)
         ctx.save_for_backward(means2d, conics, opac, feats, offsets, ids, final_t, consumed)
-        ctx.size, ctx.visible, ctx.absgrad = (width, height), visible, absgrad
+        ctx.size, ctx.absgrad = (width, height), absgrad
         ctx.mark_non_differentiable(n_pairs)
         return image, 1 - final_t, n_pairs
 
@@ -113,5 +115,5 @@ class _TileComposite(torch.autograd.Function):
             means2d.detach(), conics.detach(), opac.detach(), feats.detach(), offsets, ids, final_t, consumed,
             grad_image.contiguous(), grad_alpha.contiguous(), *ctx.size)
         if ctx.absgrad is not None:
-            ctx.absgrad.index_add_(0, ctx.visible, d_abs.to(ctx.absgrad.dtype))
+            ctx.absgrad.add_(d_abs.to(ctx.absgrad.dtype))
         return d_means, d_conics, d_opac, d_feats, None, None, None, None, None

@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <vector>
 
 #ifdef _OPENMP
@@ -39,11 +40,15 @@ int thread_id() {
 #endif
 }
 
-// Per-tile lists of Gaussian indices (CSR): offsets (tiles + 1) and ids.
-std::vector<torch::Tensor> bin_tiles(const torch::Tensor& boxes, int64_t width, int64_t height) {
+// Per-tile lists of Gaussian indices (CSR): offsets (tiles + 1) and ids. boxes (V, 4) belong to
+// the visible Gaussians in depth order; ids are their indices among all N (visible[rank]).
+std::vector<torch::Tensor> bin_tiles(const torch::Tensor& boxes, const torch::Tensor& visible, int64_t width,
+                                     int64_t height) {
     const int64_t tiles_x = (width + TILE - 1) / TILE, tiles_y = (height + TILE - 1) / TILE;
     const int64_t n = boxes.size(0);
     auto b = boxes.accessor<int64_t, 2>();
+    const auto vis_c = visible.contiguous();
+    const int64_t* vis = vis_c.data_ptr<int64_t>();
     std::vector<int64_t> counts(tiles_x * tiles_y + 1, 0);
     for (int64_t g = 0; g < n; ++g) {
         if (b[g][2] < b[g][0] || b[g][3] < b[g][1]) continue;
@@ -58,7 +63,7 @@ std::vector<torch::Tensor> bin_tiles(const torch::Tensor& boxes, int64_t width, 
     for (int64_t g = 0; g < n; ++g) {
         if (b[g][2] < b[g][0] || b[g][3] < b[g][1]) continue;
         for (int64_t ty = b[g][1] / TILE; ty <= b[g][3] / TILE; ++ty)
-            for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) out[fill[ty * tiles_x + tx]++] = g;
+            for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) out[fill[ty * tiles_x + tx]++] = vis[g];
     }
     return {offsets, ids};
 }
@@ -284,8 +289,9 @@ void backward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, cons
 // Returns image (H*W, C), final transmittance (H*W), per-pixel count of list entries
 // consumed (H*W, int32), tile offsets, tile ids and the number of pairs composited.
 std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
-                                   torch::Tensor feats, torch::Tensor boxes, int64_t width, int64_t height) {
-    auto bins = bin_tiles(boxes, width, height);
+                                   torch::Tensor feats, torch::Tensor boxes, torch::Tensor visible, int64_t width,
+                                   int64_t height) {
+    auto bins = bin_tiles(boxes, visible, width, height);
     auto image = torch::zeros({height * width, feats.size(1)}, feats.options());
     auto final_t = torch::ones({height * width}, feats.options());
     auto consumed = torch::zeros({height * width}, torch::kInt32);
@@ -320,9 +326,90 @@ std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics,
             total.slice(1, 6 + C, 8 + C)};
 }
 
+namespace {
+
+// Stable LSD radix sort of indices by key (unsigned integers ordered as the values are).
+template <typename key_t>
+void radix_sort(std::vector<key_t>& keys, std::vector<int64_t>& idx) {
+    const size_t n = keys.size();
+    std::vector<key_t> k2(n);
+    std::vector<int64_t> i2(n);
+    for (int shift = 0; shift < (int)(8 * sizeof(key_t)); shift += 8) {
+        size_t count[257] = {0};
+        for (size_t i = 0; i < n; ++i) count[((keys[i] >> shift) & 0xff) + 1]++;
+        if (count[((keys[0] >> shift) & 0xff) + 1] == n) continue;  // one bucket: order unchanged
+        for (int b = 0; b < 256; ++b) count[b + 1] += count[b];
+        for (size_t i = 0; i < n; ++i) {
+            const size_t d = count[(keys[i] >> shift) & 0xff]++;
+            k2[d] = keys[i];
+            i2[d] = idx[i];
+        }
+        keys.swap(k2);
+        idx.swap(i2);
+    }
+}
+
+template <typename scalar_t, typename key_t>
+void sort_by_depth(const scalar_t* depths, std::vector<int64_t>& idx) {
+    if (idx.empty()) return;
+    std::vector<key_t> keys(idx.size());
+    for (size_t i = 0; i < idx.size(); ++i) {
+        key_t bits;
+        std::memcpy(&bits, depths + idx[i], sizeof(key_t));
+        const key_t sign = (key_t)1 << (8 * sizeof(key_t) - 1);
+        keys[i] = (bits & sign) ? ~bits : (bits | sign);  // float order (-0 before +0; no NaN here)
+    }
+    radix_sort(keys, idx);
+}
+
+}  // namespace
+
+// eve3d.render.projection.front_to_back in C++: the Gaussians with a positive radius, sorted
+// stably by depth, and their inclusive pixel boxes (V, 4) x0, y0, x1, y1, computed with the
+// same float operations.
+std::vector<torch::Tensor> front_to_back(torch::Tensor radii, torch::Tensor depths, torch::Tensor means2d,
+                                         int64_t width, int64_t height) {
+    radii = radii.to(torch::kInt32).contiguous();
+    means2d = means2d.contiguous();
+    depths = depths.to(means2d.scalar_type()).contiguous();
+    const int64_t n = radii.size(0);
+    const int32_t* r = radii.data_ptr<int32_t>();
+    std::vector<int64_t> idx;
+    idx.reserve(n);
+    for (int64_t i = 0; i < n; ++i)
+        if (r[2 * i] > 0 || r[2 * i + 1] > 0) idx.push_back(i);
+    torch::Tensor boxes;
+    AT_DISPATCH_FLOATING_TYPES(means2d.scalar_type(), "eve3d_front_to_back", [&] {
+        if (sizeof(scalar_t) == 4)
+            sort_by_depth<scalar_t, uint32_t>(depths.data_ptr<scalar_t>(), idx);
+        else
+            sort_by_depth<scalar_t, uint64_t>(depths.data_ptr<scalar_t>(), idx);
+        const int64_t v = idx.size();
+        boxes = torch::empty({v, 4}, torch::kInt64);
+        int64_t* b = boxes.data_ptr<int64_t>();
+        const scalar_t* m = means2d.data_ptr<scalar_t>();
+        const scalar_t half = (scalar_t)0.5, big = (scalar_t)1e12;
+        const scalar_t limit[2] = {(scalar_t)(width - 1), (scalar_t)(height - 1)};
+        for (int64_t j = 0; j < v; ++j) {
+            for (int a = 0; a < 2; ++a) {
+                const scalar_t mm = m[2 * idx[j] + a], rr = (scalar_t)r[2 * idx[j] + a];
+                scalar_t lo = std::ceil(mm - rr - half);
+                lo = lo < 0 ? (scalar_t)0 : lo;
+                scalar_t hi = std::floor(mm + rr - half);
+                hi = hi < limit[a] ? hi : limit[a];
+                b[4 * j + a] = (int64_t)std::min(lo, big);
+                b[4 * j + 2 + a] = (int64_t)std::max(hi, -big);
+            }
+        }
+    });
+    auto visible = torch::from_blob(idx.data(), {(int64_t)idx.size()}, torch::kInt64).clone();
+    return {visible, boxes};
+}
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("forward", &forward, "tile-based Gaussian compositing (forward)");
     m.def("backward", &backward, "tile-based Gaussian compositing (backward)");
+    m.def("front_to_back", &front_to_back, "visible Gaussians sorted by depth, and their pixel boxes");
     m.def("project_forward", &project_forward, "fused EWA projection and PGSR planes (forward)");
     m.def("project_backward", &project_backward, "fused EWA projection and PGSR planes (backward)");
 }
