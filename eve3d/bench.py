@@ -623,17 +623,12 @@ def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], Non
 def stage_settings_for(stage: str, config: dict, gaussians: int):
     """The settings of ``stage`` (``pretrain`` or a trained method) under ``config``, without
     checkpoints, drawing ``gaussians`` prior points where the method starts from the priors."""
-    from eve3d.config import stage_settings
-    from eve3d.methods import method
-    from eve3d.settings import JointSettings, PretrainSettings
+    from eve3d.config import method_settings, stage_settings
+    from eve3d.settings import PretrainSettings
 
     if stage == "pretrain":
         return stage_settings(PretrainSettings, "pretrain", config, checkpoint_every=0)
-    m = method(stage, config.get("variants"), "--stages")
-    if not m.trains:
-        raise Eve3dError(f"--stages {stage}: {m.summary}; it is not trained")
-    return stage_settings(JointSettings, "joint", config, overrides=m.settings, method=m.name, checkpoint_every=0,
-                          init_prior_points=gaussians)
+    return method_settings(stage, config, "--stages", checkpoint_every=0, init_prior_points=gaussians)
 
 
 def time_training(scene_dir: str, stage: str, config: dict, gaussians: int, start: int, warmup: int, steps: int,

@@ -3,9 +3,11 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import json
 import sys
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 from eve3d.scene import Eve3dError
@@ -24,10 +26,16 @@ def _settings(a: argparse.Namespace, cls: type, section: str, config: dict | Non
     """``cls`` from the job's ``section`` (``eve3d.config.stage_settings``); an error about a
     key given by a flag names the flag too."""
     from eve3d.config import stage_settings
+
+    return _naming_flags(a, lambda: stage_settings(cls, section, _config(a) if config is None else config, **kw))
+
+
+def _naming_flags(a: argparse.Namespace, build: Callable[[], Any]) -> Any:
+    """``build()``, its error about a key that a flag of ``a`` gave naming that flag too."""
     from eve3d.settings import flag
 
     try:
-        return stage_settings(cls, section, _config(a) if config is None else config, **kw)
+        return build()
     except Eve3dError as e:
         key, sep, rest = str(e).partition(": ")
         name = key.rsplit(".", 1)[-1]
@@ -108,16 +116,12 @@ def _cmd_pretrain(a: argparse.Namespace) -> None:
 
 
 def _cmd_joint(a: argparse.Namespace) -> None:
+    from eve3d.config import method_settings
     from eve3d.io import load_scene
     from eve3d.joint import train_joint
-    from eve3d.methods import method
-    from eve3d.settings import JointSettings
 
     config = _config(a)
-    m = method(a.method, config.get("variants") or {}, "--method")
-    if not m.trains:
-        raise Eve3dError(f"--method {m.name}: {m.summary}; it is not trained by the joint stage")
-    settings = _settings(a, JointSettings, "joint", config, overrides=m.settings, method=m.name)
+    settings = _naming_flags(a, lambda: method_settings(a.method, config, "--method"))
     metrics = train_joint(load_scene(a.scene), Path(a.out), settings, Path(a.priors) if a.priors else None)
     print(f"training views: PSNR {metrics['train']['psnr']:.2f} dB; wrote {a.out}/point_cloud.ply "
           f"({metrics['gaussians']} Gaussians) and {a.out}/depth/")
@@ -316,14 +320,22 @@ def _yaml_list(value: str) -> list:
     return parsed
 
 
+@functools.cache
+def _preset() -> dict:
+    """What a stage reads without ``--config`` (the cpu preset): the flags' shown defaults."""
+    from eve3d.config import job_config
+
+    return job_config()
+
+
 def _settings_flags(group, cls: type, section: str, only: tuple[str, ...] = (), skip: tuple[str, ...] = ()) -> None:
     """One flag per field of a settings class, a shorthand of ``--set SECTION.KEY=VALUE``:
     its name, kind, choices and help (the field's first docstring sentence and its default
     under the cpu preset) come from ``eve3d.settings``."""
-    from eve3d.config import TRAINING_SECTIONS, job_config
+    from eve3d.config import TRAINING_SECTIONS
     from eve3d.settings import flag, keys
 
-    preset = job_config()
+    preset = _preset()
     shared = preset.get("train") or {} if section in TRAINING_SECTIONS else {}
     given = {**shared, **(preset.get(section) or {})}
     for key in keys(cls):

@@ -203,3 +203,16 @@ def stage_settings(cls: type, section: str, config: Mapping, overrides: dict | N
     values.update(fixed)
     where = f"{section} (train + {section} sections)" if training else section
     return from_mapping(cls, values, where=where)
+
+
+def method_settings(name: str, config: Mapping, where: str, **fixed: Any) -> Any:
+    """The joint stage's settings of the trained method ``name`` (a registered method or a
+    variant of ``config``): ``train`` + ``joint``, the method's own settings over them, plus
+    ``fixed``. ``where`` names the option that gave the name, for the errors."""
+    from eve3d.methods import method
+    from eve3d.settings import JointSettings
+
+    m = method(name, config.get("variants") or {}, where)
+    if not m.trains:
+        raise Eve3dError(f"{where} {m.name}: {m.summary}; it is not trained by the joint stage")
+    return stage_settings(JointSettings, "joint", config, overrides=m.settings, method=m.name, **fixed)

@@ -9,7 +9,7 @@ from typing import Any
 
 import yaml
 
-from eve3d.config import PRESETS, REPO
+from eve3d.config import PRESETS, REPO, scene_value
 from eve3d.settings import (EvalSettings, JointSettings, MeshSettings, PretrainSettings, SfmSettings, StereoSettings,
                             SyntheticSettings, TrainSettings, keys, sections_of)
 
@@ -31,14 +31,6 @@ def _text(value: Any) -> str:
                                 default_flow_style=True, width=200).strip().removesuffix("\n...").strip() + "`"
 
 
-def _lookup(mapping: dict, path: list[str]) -> Any:
-    for part in path:
-        if not isinstance(mapping, dict) or part not in mapping:
-            return None
-        mapping = mapping[part]
-    return mapping
-
-
 def _flat(mapping: dict, prefix: str = "") -> list[str]:
     out = []
     for k, v in mapping.items():
@@ -56,7 +48,7 @@ def _rows(section: str, cls: type, presets: dict[str, dict], prefix: str = "") -
         path = prefix + key.name
         if own is not None and key.name not in own and path not in preset_keys:
             continue
-        values = [_lookup(presets[name].get(section) or {}, path.split(".")) for name in PRESET_NAMES]
+        values = [scene_value(presets[name].get(section) or {}, path) for name in PRESET_NAMES]
         cells = [f"`{path}`", _text(key.default), key.expected, *("" if v is None else _text(v) for v in values),
                  key.doc.replace("``", "`").replace("|", "\\|")]
         rows.append("| " + " | ".join(cells) + " |")

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from eve3d.render.projection import CameraTensors, Projected, plane_features, project_gaussians, quat_to_rotmat
+from eve3d.render.projection import CameraTensors, Projected, camera_planes, project_gaussians
 from eve3d.scene import Camera, Eve3dError
 from eve3d.settings import RENDER_BACKENDS, RenderSettings
 
@@ -96,9 +96,7 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     if background is None:
         background = torch.zeros(n_colors, dtype=means.dtype, device=means.device)
     if backend == "gsplat":  # gsplat projects; only the planes are ours
-        rotmats = quat_to_rotmat(quats)
-        means_c = means @ cam.R.T + cam.t
-        normals, distances = plane_features(means_c, rotmats, scales, cam.R)
+        _, means_c, normals, distances = camera_planes(means, quats, scales, cam)
         proj, cam_z = None, means_c[:, 2]
     else:
         from eve3d.render import cpu

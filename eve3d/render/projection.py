@@ -147,6 +147,15 @@ def project(means_c: torch.Tensor, rotmats: torch.Tensor, scales: torch.Tensor, 
     return Projected(means2d, conics, z, radii, compensation)
 
 
+def camera_planes(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, cam: CameraTensors
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rotation matrices (N, 3, 3), camera-space centres (N, 3), and PGSR's planes: normals
+    (N, 3) and distances (N,) (:func:`plane_features`)."""
+    rotmats = quat_to_rotmat(quats)
+    means_c = means @ cam.R.T + cam.t
+    return (rotmats, means_c, *plane_features(means_c, rotmats, scales, cam.R))
+
+
 def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
                       cam: CameraTensors, near: float = 0.01, far: float = 1e10, antialiased: bool = False
                       ) -> tuple[Projected, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -155,9 +164,7 @@ def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Te
     camera-space normals (N, 3) and plane distances (N,).
 
     The reference (autograd) that the ``cpu`` backend's fused C++ projection reproduces."""
-    rotmats = quat_to_rotmat(quats)
-    means_c = means @ cam.R.T + cam.t
-    normals, distances = plane_features(means_c, rotmats, scales, cam.R)
+    rotmats, means_c, normals, distances = camera_planes(means, quats, scales, cam)
     proj = project(means_c, rotmats, scales, opacities, cam, near, far)
     return proj, opacities * proj.compensation if antialiased else opacities, normals, distances
 

@@ -7,11 +7,11 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
-from eve3d.config import has_gt_mesh, resolve_config, scene_protocol, scene_value, stage_settings
+from eve3d.config import has_gt_mesh, method_settings, resolve_config, scene_protocol, scene_value, stage_settings
 from eve3d.io.loader import has_poses
 from eve3d.layout import PRETRAIN, Layout
 from eve3d.scene import Eve3dError
-from eve3d.settings import JointSettings, PretrainSettings, RenderSettings, flag, pick
+from eve3d.settings import PretrainSettings, RenderSettings, flag, pick
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")
@@ -54,7 +54,7 @@ METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
 try:
     stage_settings(PretrainSettings, "pretrain", config)
     for _name in TRAINED:
-        stage_settings(JointSettings, "joint", config, overrides=METHOD[_name].settings)
+        method_settings(_name, config, "methods")
 except Eve3dError as e:
     raise WorkflowError(f"config: {e}")
 # Jobs run `python -m eve3d`: the interpreter that runs Snakemake (a venv) comes first on
