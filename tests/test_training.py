@@ -9,7 +9,8 @@ import torch
 from eve3d.densify import Densifier, reset_opacity
 from eve3d.gaussians import GaussianModel
 from eve3d.joint import train_joint
-from eve3d.losses import depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss
+from eve3d.losses import (CameraStack, depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss,
+                          ssim)
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Camera, Eve3dError
 from eve3d.settings import DensifySettings, JointSettings, TrainSettings, from_mapping
@@ -109,28 +110,51 @@ def test_multiview_losses_vanish_on_the_true_plane_and_not_off_it():
     cam_a, depth_a, img_a = a
     cam_b, depth_b, img_b = b
     assert torch.allclose(depth_to_normal(depth_a, cam_a)[1:-1, 1:-1], normal[1:-1, 1:-1], atol=1e-9)
-    phi, defined = forward_backward_error(depth_a, depth_b, cam_a, cam_b)
+    phi, defined = (x[0] for x in forward_backward_error(depth_a, [depth_b], cam_a, CameraStack([cam_b])))
     assert defined.float().mean() > 0.5 and phi[defined].max() < 0.01  # bilinear depth lookup: z is not affine in (u, v)
     loss, valid = geometric_loss(phi, defined)
     assert float(loss) < 0.01 and torch.equal(valid, defined)
     # 8 px of disparity here: a 5% depth error leaves the loop open by about 0.4 px, 20% by 1.6 px
-    phi_off, _ = forward_backward_error(depth_a * 1.05, depth_b, cam_a, cam_b)
+    phi_off = forward_backward_error(depth_a * 1.05, [depth_b], cam_a, CameraStack([cam_b]))[0][0]
     assert 0.3 < phi_off[defined].median() < 0.5
-    phi_off, _ = forward_backward_error(depth_a * 1.2, depth_b, cam_a, cam_b)
+    phi_off = forward_backward_error(depth_a * 1.2, [depth_b], cam_a, CameraStack([cam_b]))[0][0]
     assert phi_off[defined].median() > 1.0
     pixels = torch.stack(torch.meshgrid(torch.arange(10, 38, 3), torch.arange(10, 54, 3), indexing="ij"), -1).reshape(-1, 2)
-    ncc, ok = ncc_loss(img_a, img_b, cam_a, cam_b, normal, distance, pixels)
+    grey_a, grey_b, cams_b = img_a.mean(-1, keepdim=True), [img_b.mean(-1, keepdim=True)], CameraStack([cam_b])
+    ncc, ok = (x[0] for x in ncc_loss(grey_a, grey_b, cam_a, cams_b, normal, distance, pixels[None]))
     # exact up to the bilinear lookup in the neighbour (low-contrast patches feel it most)
     assert ok.float().mean() > 0.5 and ncc[ok].median() < 1e-3 and ncc[ok].max() < 0.02
-    ncc_off, ok_off = ncc_loss(img_a, img_b, cam_a, cam_b, normal, distance * 1.3, pixels)
+    ncc_off, ok_off = (x[0] for x in ncc_loss(grey_a, grey_b, cam_a, cams_b, normal, distance * 1.3, pixels[None]))
     assert ncc_off[ok & ok_off].mean() > 0.1
+
+
+def test_ssim_matches_a_reference_with_zero_padding():
+    """3DGS's SSIM (11×11 Gaussian window, σ 1.5, zero padding) against scipy's correlate."""
+    from scipy.ndimage import correlate
+
+    rng = np.random.default_rng(0)
+    a = rng.random((30, 41, 3))
+    b = np.clip(a + 0.1 * rng.normal(size=a.shape), 0, 1)
+    x = np.arange(11) - 5.0
+    g = np.exp(-x**2 / (2 * 1.5**2))
+    window = np.outer(g, g) / g.sum() ** 2
+    blur = lambda m: correlate(m, window, mode="constant", cval=0.0)  # noqa: E731
+    maps = []
+    for ch in range(3):
+        u, v = a[..., ch], b[..., ch]
+        mu_u, mu_v = blur(u), blur(v)
+        var_u, var_v, cov = blur(u * u) - mu_u**2, blur(v * v) - mu_v**2, blur(u * v) - mu_u * mu_v
+        c1, c2 = 0.01**2, 0.03**2
+        maps.append((2 * mu_u * mu_v + c1) * (2 * cov + c2) / ((mu_u**2 + mu_v**2 + c1) * (var_u + var_v + c2)))
+    assert abs(float(ssim(torch.tensor(a), torch.tensor(b))) - np.mean(maps)) < 1e-12
 
 
 def test_ncc_gradient_reaches_the_plane():
     (a, b), normal, distance = _plane_views()
     d = (distance * 1.1).requires_grad_()
     pixels = torch.tensor([[24, 32], [20, 20], [30, 40]])
-    ncc, ok = ncc_loss(a[2], b[2], a[0], b[0], normal, d, pixels)
+    ncc, ok = (x[0] for x in ncc_loss(a[2].mean(-1, keepdim=True), [b[2].mean(-1, keepdim=True)], a[0],
+                                      CameraStack([b[0]]), normal, d, pixels[None]))
     ncc[ok].sum().backward()
     assert d.grad[24, 32] != 0 and torch.count_nonzero(d.grad) == 3
 
