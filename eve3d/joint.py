@@ -134,7 +134,7 @@ def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], 
         candidates = [j for j in neighbours[view.index] if j in train_set]
         if step >= s.mv_from and candidates and (s.geo_weight or s.ncc_weight):
             nbr = trainer.views[candidates[int(torch.randint(len(candidates), (1,), generator=trainer.generator))]]
-            out_n = trainer.render(nbr, step)
+            out_n = trainer.render(nbr, step, geometry_only=True)  # only its depth is used
             geo, ncc, _ = multiview_terms(view, [nbr], out.depth, out.normal, out.distance, [out_n.depth], covered,
                                           s, trainer.generator, with_ncc=bool(s.ncc_weight))
             t["mv_geo"] = s.geo_weight * geo[0]
