@@ -153,13 +153,26 @@ def _sample(maps: Sequence[torch.Tensor], uv: torch.Tensor) -> torch.Tensor:
 
 
 def forward_backward_error(depth_ref: torch.Tensor, depth_nbrs: Sequence[torch.Tensor], ref: CameraTensors,
-                           nbrs: CameraStack) -> tuple[torch.Tensor, torch.Tensor]:
+                           nbrs: CameraStack, fused: bool | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """PGSR's multi-view geometric check against K neighbours at once. Each reference pixel
     is back-projected with ``depth_ref`` (H, W), projected into neighbour k, given that
     neighbour's depth there (bilinear in ``depth_nbrs[k]``), back-projected and projected
     into the reference again. Returns φ (K, H, W), the pixel distance of each round trip,
-    and whether the round trip was defined (K, H, W)."""
+    and whether the round trip was defined (K, H, W).
+
+    ``fused``: compute it in one pass of the C++ extension (``csrc/roundtrip.cpp``, an
+    analytic backward), which by default it does on the CPU when the neighbours' maps share a
+    size and the extension builds; else with the PyTorch operations below (the reference)."""
     R, t = relative_poses(ref, nbrs)
+    if fused is None:
+        from eve3d.render import cpu
+
+        fused = (depth_ref.device.type == "cpu" and all(d.shape == depth_nbrs[0].shape for d in depth_nbrs)
+                 and cpu.available())
+    if fused:
+        intrinsics = torch.cat([nbrs.focal, nbrs.centre], 1).to(depth_ref.dtype)
+        return _RoundTrip.apply(depth_ref, torch.stack(list(depth_nbrs)), R.to(depth_ref.dtype),
+                                t.to(depth_ref.dtype), intrinsics, (ref.fx, ref.fy, ref.cx, ref.cy))
     p_ref = depth_to_points(depth_ref, ref)
     p_nbr = p_ref.reshape(1, -1, 3) @ R.transpose(1, 2) + t[:, None]  # (K, HW, 3)
     uv_n, z_n = nbrs.project(p_nbr)
@@ -170,6 +183,31 @@ def forward_backward_error(depth_ref: torch.Tensor, depth_nbrs: Sequence[torch.T
     phi = (uv_r - ref.pixel_centres().reshape(1, -1, 2)).norm(dim=-1).reshape(shape)
     defined = (depth_ref > 0).reshape(1, -1) & (z_n > 0) & (d_n > 0) & (z_r > 0) & nbrs.inside(uv_n)
     return phi, defined.reshape(shape)
+
+
+class _RoundTrip(torch.autograd.Function):
+    """:func:`forward_backward_error`'s φ and definedness from the C++ extension; gradients
+    reach the reference depth and every neighbour depth."""
+
+    @staticmethod
+    def forward(ctx, depth_ref, depth_nbrs, R, t, intrinsics, ref_intrinsics):
+        from eve3d.render import cpu
+
+        args = (R, t, intrinsics, *ref_intrinsics)
+        phi, defined = cpu.extension().roundtrip_forward(depth_ref.detach(), depth_nbrs.detach(), *args)
+        ctx.save_for_backward(depth_ref, depth_nbrs)
+        ctx.args = args
+        ctx.mark_non_differentiable(defined)
+        return phi, defined
+
+    @staticmethod
+    def backward(ctx, grad_phi, _):
+        from eve3d.render import cpu
+
+        depth_ref, depth_nbrs = ctx.saved_tensors
+        grad_ref, grad_nbrs = cpu.extension().roundtrip_backward(depth_ref.detach(), depth_nbrs.detach(), *ctx.args,
+                                                                 grad_phi)
+        return grad_ref, grad_nbrs, None, None, None, None
 
 
 def _project(points: torch.Tensor, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:

@@ -128,6 +128,50 @@ def test_multiview_losses_vanish_on_the_true_plane_and_not_off_it():
     assert ncc_off[ok & ok_off].mean() > 0.1
 
 
+def _round_trip_setup(dtype, width=40, height=30):
+    """A reference and three rotated, shifted neighbours with noisy depths near 3 (every
+    pixel a round trip that mostly closes, some leaving the neighbour's frame)."""
+    K = np.array([[44.0, 0, 20.3], [0, 46, 14.8], [0, 0, 1]])
+    cams = []
+    for i in range(4):
+        a = 0.06 * i
+        R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        cam = Camera(f"{i}.png", width, height, K, R, np.array([-0.15 * i, 0.02 * i, 0]))
+        cams.append(CameraTensors.from_camera(cam, dtype))
+    g = torch.Generator().manual_seed(0)
+    depth = 3 + 0.2 * torch.rand(height, width, generator=g, dtype=dtype)
+    nbr_depths = [3 + 0.2 * torch.rand(height, width, generator=g, dtype=dtype) for _ in range(3)]
+    return cams[0], CameraStack(cams[1:]), depth, nbr_depths
+
+
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-10), (torch.float32, 2e-4)])
+def test_fused_round_trip_matches_the_pytorch_reference(dtype, tol):
+    ref, nbrs, depth, nbr_depths = _round_trip_setup(dtype)
+    depth[0, :5] = 0  # no depth: undefined
+    results = []
+    for fused in (False, True):
+        d, n = depth.clone().requires_grad_(), [x.clone().requires_grad_() for x in nbr_depths]
+        phi, defined = forward_backward_error(d, n, ref, nbrs, fused=fused)
+        weights = torch.linspace(0.1, 1, phi.numel(), dtype=dtype).reshape(phi.shape)
+        (phi * weights * defined).sum().backward()
+        results.append((phi, defined, d.grad, torch.stack([x.grad for x in n])))
+    (phi, defined, g_ref, g_nbr), (phi_f, defined_f, g_ref_f, g_nbr_f) = results
+    assert torch.equal(defined, defined_f) and 0.5 < defined.float().mean() < 0.99
+    assert torch.allclose(phi_f[defined], phi[defined], rtol=tol, atol=tol)
+    assert g_ref.abs().max() > 0.1 and g_nbr.abs().max() > 0.1
+    assert torch.allclose(g_ref_f, g_ref, rtol=tol, atol=tol * 10) and torch.allclose(g_nbr_f, g_nbr, rtol=tol,
+                                                                                         atol=tol * 10)
+
+
+def test_fused_round_trip_gradients_pass_gradcheck():
+    ref, nbrs, depth, nbr_depths = _round_trip_setup(torch.float64, 12, 9)
+    defined = forward_backward_error(depth, nbr_depths, ref, nbrs, fused=True)[1]
+    assert defined.float().mean() > 0.7
+    phi = lambda d, *n: forward_backward_error(d, list(n), ref, nbrs, fused=True)[0] * defined  # noqa: E731
+    inputs = (depth.requires_grad_(), *[x.requires_grad_() for x in nbr_depths])
+    assert torch.autograd.gradcheck(phi, inputs, eps=1e-7, atol=1e-5)
+
+
 def test_ssim_matches_a_reference_with_zero_padding():
     """3DGS's SSIM (11×11 Gaussian window, σ 1.5, zero padding) against scipy's correlate."""
     from scipy.ndimage import correlate

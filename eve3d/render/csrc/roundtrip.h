@@ -1,0 +1,14 @@
+// PGSR's multi-view round trip (roundtrip.cpp), bound to Python in rasterize.cpp's module.
+#pragma once
+
+#include <torch/extension.h>
+
+#include <vector>
+
+std::vector<torch::Tensor> roundtrip_forward(torch::Tensor depth_ref, torch::Tensor depth_nbrs, torch::Tensor R,
+                                             torch::Tensor t, torch::Tensor nbr_intrinsics, double fx, double fy,
+                                             double cx, double cy);
+
+std::vector<torch::Tensor> roundtrip_backward(torch::Tensor depth_ref, torch::Tensor depth_nbrs, torch::Tensor R,
+                                              torch::Tensor t, torch::Tensor nbr_intrinsics, double fx, double fy,
+                                              double cx, double cy, torch::Tensor grad_phi);
