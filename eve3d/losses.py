@@ -238,19 +238,32 @@ def plane_homographies(ref: CameraTensors, nbrs: CameraStack, normal: torch.Tens
 
 def ncc_loss(ref_grey: torch.Tensor, nbr_greys: Sequence[torch.Tensor], ref: CameraTensors, nbrs: CameraStack,
              normal: torch.Tensor, distance: torch.Tensor, pixels: torch.Tensor, patch: int = 7,
-             step: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+             step: float = 1.0, fused: bool | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Photometric multi-view loss 1 − NCC of ``patch``×``patch`` patches of grey images
     ((H, W, 1) ``ref_grey``, one of ``nbr_greys`` per neighbour) around reference
     ``pixels`` (K, M, 2 integer (row, col)), those of row k warped into neighbour k by each
     pixel's rendered plane (``normal`` (H, W, 3), ``distance`` (H, W)). Returns the per-
-    pixel loss (K, M) in [0, 2] and where it is defined."""
+    pixel loss (K, M) in [0, 2] and where it is defined. ``fused``: as in
+    :func:`forward_backward_error` (the C++ path takes patches of up to 8×8)."""
+    centres = pixels.flip(-1).to(ref_grey.dtype) + 0.5  # (K, M, 2) as (u, v)
+    n = normal[pixels[..., 0], pixels[..., 1]]
+    d = distance[pixels[..., 0], pixels[..., 1]]
+    if fused is None:
+        from eve3d.render import cpu
+
+        fused = (ref_grey.device.type == "cpu" and patch <= 8 and all(g.shape == nbr_greys[0].shape for g in nbr_greys)
+                 and cpu.available())
+    if fused:
+        R, t = relative_poses(ref, nbrs)
+        dtype = ref_grey.dtype
+        intrinsics = torch.cat([nbrs.focal, nbrs.centre], 1).to(dtype)
+        greys = torch.stack([g[..., 0] for g in nbr_greys]).to(dtype)
+        return _FusedNcc.apply(ref_grey[..., 0], greys, centres, n.to(dtype), d.to(dtype), R.to(dtype), t.to(dtype),
+                               intrinsics, (ref.fx, ref.fy, ref.cx, ref.cy, patch, step))
     half = (patch - 1) / 2 * step
     offs = torch.linspace(-half, half, patch, dtype=ref_grey.dtype, device=ref_grey.device)
     dv, du = torch.meshgrid(offs, offs, indexing="ij")
-    centres = pixels.flip(-1).to(ref_grey.dtype) + 0.5  # (K, M, 2) as (u, v)
     uv_ref = centres[..., None, :] + torch.stack([du, dv], -1).reshape(-1, 2)  # (K, M, P, 2)
-    n = normal[pixels[..., 0], pixels[..., 1]]
-    d = distance[pixels[..., 0], pixels[..., 1]]
     # n and d are both blended (scaled by the pixel's alpha): their ratio is the plane's.
     H = plane_homographies(ref, nbrs, n, d.clamp_min(1e-6))
     hom = torch.cat([uv_ref, torch.ones_like(uv_ref[..., :1])], -1) @ H.transpose(-1, -2)
@@ -266,3 +279,28 @@ def ncc_loss(ref_grey: torch.Tensor, nbr_greys: Sequence[torch.Tensor], ref: Cam
     inside = (nbrs.inside(uv_nbr) & (w > 0)).all(-1)
     defined = inside & (d > 0) & (var > 1e-8)
     return (1 - ncc.clamp(-1, 1)), defined
+
+
+class _FusedNcc(torch.autograd.Function):
+    """:func:`ncc_loss` from the C++ extension; gradients reach the planes (normal, distance)."""
+
+    @staticmethod
+    def forward(ctx, ref_grey, nbr_greys, centres, normal, distance, R, t, intrinsics, settings):
+        from eve3d.render import cpu
+
+        ctx.inputs = (ref_grey, nbr_greys, centres)
+        ctx.args = (R, t, intrinsics, *settings)
+        ctx.save_for_backward(normal, distance)
+        loss, defined = cpu.extension().ncc_forward(ref_grey, nbr_greys, centres, normal.detach(), distance.detach(),
+                                                    *ctx.args)
+        ctx.mark_non_differentiable(defined)
+        return loss, defined
+
+    @staticmethod
+    def backward(ctx, grad_loss, _):
+        from eve3d.render import cpu
+
+        normal, distance = ctx.saved_tensors
+        g_normal, g_distance = cpu.extension().ncc_backward(*ctx.inputs, normal.detach(), distance.detach(),
+                                                            *ctx.args, grad_loss)
+        return None, None, None, g_normal, g_distance, None, None, None, None

@@ -172,6 +172,48 @@ def test_fused_round_trip_gradients_pass_gradcheck():
     assert torch.autograd.gradcheck(phi, inputs, eps=1e-7, atol=1e-5)
 
 
+def _ncc_inputs(dtype):
+    """Grey images with a shared sinusoidal texture (shifted per neighbour, plus noise),
+    planes near the fronto-parallel z = 3, and 50 random pixels per neighbour."""
+    g = torch.Generator().manual_seed(1)
+    yy, xx = torch.meshgrid(torch.arange(30, dtype=dtype), torch.arange(40, dtype=dtype), indexing="ij")
+    grey = (0.5 + 0.3 * torch.sin(xx * 0.7) * torch.cos(yy * 0.5))[..., None]
+    greys = [(0.5 + 0.3 * torch.sin(xx * 0.7 + 0.3 * k) * torch.cos(yy * 0.5 - 0.2 * k)
+              + 0.05 * torch.rand(30, 40, generator=g, dtype=dtype))[..., None] for k in range(3)]
+    tilt = torch.tensor([0.05, -0.03, -1.0], dtype=dtype)
+    normal = torch.nn.functional.normalize(tilt + 0.1 * torch.randn(30, 40, 3, generator=g, dtype=dtype), dim=-1)
+    distance = 3 + 0.3 * torch.rand(30, 40, generator=g, dtype=dtype)
+    pixels = torch.stack([torch.randint(0, 30, (3, 50), generator=g), torch.randint(0, 40, (3, 50), generator=g)], -1)
+    return grey, greys, normal, distance, pixels
+
+
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-10), (torch.float32, 1e-4)])
+def test_fused_ncc_matches_the_pytorch_reference(dtype, tol):
+    ref, nbrs, _, _ = _round_trip_setup(dtype)
+    grey, greys, normal, distance, pixels = _ncc_inputs(dtype)
+    results = []
+    for fused in (False, True):
+        n, d = normal.clone().requires_grad_(), distance.clone().requires_grad_()
+        loss, ok = ncc_loss(grey, greys, ref, nbrs, n, d, pixels, fused=fused)
+        weights = torch.linspace(0.1, 1, loss.numel(), dtype=dtype).reshape(loss.shape)
+        (loss * weights * ok).sum().backward()
+        results.append((loss, ok, n.grad, d.grad))
+    (loss, ok, g_n, g_d), (loss_f, ok_f, g_n_f, g_d_f) = results
+    assert torch.equal(ok, ok_f) and 0.4 < ok.float().mean() < 0.9
+    assert torch.allclose(loss_f[ok], loss[ok], atol=tol) and 0.3 < loss[ok].mean() < 1.2
+    assert g_n.abs().max() > 1 and g_d.abs().max() > 1
+    assert torch.allclose(g_n_f, g_n, atol=tol * 10) and torch.allclose(g_d_f, g_d, atol=tol * 10)
+
+
+def test_fused_ncc_gradients_pass_gradcheck():
+    ref, nbrs, _, _ = _round_trip_setup(torch.float64)
+    grey, greys, normal, distance, pixels = _ncc_inputs(torch.float64)
+    ok = ncc_loss(grey, greys, ref, nbrs, normal, distance, pixels[:, :8], fused=True)[1]
+    assert ok.float().mean() > 0.4
+    loss = lambda n, d: ncc_loss(grey, greys, ref, nbrs, n, d, pixels[:, :8], fused=True)[0] * ok  # noqa: E731
+    assert torch.autograd.gradcheck(loss, (normal.requires_grad_(), distance.requires_grad_()), eps=1e-7, atol=1e-5)
+
+
 def test_ssim_matches_a_reference_with_zero_padding():
     """3DGS's SSIM (11×11 Gaussian window, σ 1.5, zero padding) against scipy's correlate."""
     from scipy.ndimage import correlate

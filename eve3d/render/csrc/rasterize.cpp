@@ -415,4 +415,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("project_backward", &project_backward, "fused EWA projection and PGSR planes (backward)");
     m.def("roundtrip_forward", &roundtrip_forward, "PGSR's multi-view round trip against K neighbours (forward)");
     m.def("roundtrip_backward", &roundtrip_backward, "PGSR's multi-view round trip (backward)");
+    m.def("ncc_forward", &ncc_forward, "1 - NCC of homography-warped patches against K neighbours (forward)");
+    m.def("ncc_backward", &ncc_backward, "1 - NCC of homography-warped patches (backward)");
 }

@@ -8,6 +8,7 @@
 // with its autograd node, by one pass over the pixels.
 #include "roundtrip.h"
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -191,6 +192,156 @@ void backward_impl(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, 
     }
 }
 
+// ---- NCC of patches warped by the plane-induced homography (eve3d.losses.ncc_loss) ----------
+
+constexpr double NCC_EPS = 1e-8;     // var + 1e-8 under the square root; var > 1e-8 to be defined
+constexpr double DIST_FLOOR = 1e-6;  // the plane distance is clamped below at this
+
+template <typename T>
+inline T sample(const T* map, T u, T v, int64_t w, int64_t h, T* du = nullptr, T* dv = nullptr) {
+    const auto b = bilinear(u, v, w, h);
+    const T v00 = tap(map, b.x0, b.y0, w, h), v10 = tap(map, b.x0 + 1, b.y0, w, h);
+    const T v01 = tap(map, b.x0, b.y0 + 1, w, h), v11 = tap(map, b.x0 + 1, b.y0 + 1, w, h);
+    if (du) *du = b.gx_mult * ((1 - b.ty) * (v10 - v00) + b.ty * (v11 - v01));
+    if (dv) *dv = b.gy_mult * ((1 - b.tx) * (v01 - v00) + b.tx * (v11 - v10));
+    return (1 - b.tx) * (1 - b.ty) * v00 + b.tx * (1 - b.ty) * v10 + (1 - b.tx) * b.ty * v01 + b.tx * b.ty * v11;
+}
+
+// One reference pixel against one neighbour: the patch, its warp and the NCC statistics.
+template <typename T>
+struct Patch {
+    T H[9], dd, a[64], b[64], hom[64][3], ws[64], cov, va, vb, S, ncc;
+    bool defined;
+};
+
+template <typename T>
+void ncc_patch(const T* ref, int64_t W, int64_t Hh, const T* nbr, int64_t w, int64_t h, const T* centre,
+               const T* n, T d, const Pose<T>& Q, T fx, T fy, T cx, T cy, int64_t patch, T step, Patch<T>& s) {
+    const int64_t P = patch * patch;
+    s.dd = d > (T)DIST_FLOOR ? d : (T)DIST_FLOOR;
+    T A[9], KA[9];
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) A[3 * i + j] = Q.R[3 * i + j] - Q.t[i] * n[j] / s.dd;
+    for (int j = 0; j < 3; ++j) {  // K_n A
+        KA[j] = Q.fx * A[j] + Q.cx * A[6 + j];
+        KA[3 + j] = Q.fy * A[3 + j] + Q.cy * A[6 + j];
+        KA[6 + j] = A[6 + j];
+    }
+    for (int i = 0; i < 3; ++i) {  // (K_n A) K_r^-1
+        s.H[3 * i] = KA[3 * i] / fx;
+        s.H[3 * i + 1] = KA[3 * i + 1] / fy;
+        s.H[3 * i + 2] = KA[3 * i + 2] - KA[3 * i] * cx / fx - KA[3 * i + 1] * cy / fy;
+    }
+    const T half = (T)(patch - 1) / 2 * step;
+    T mean_a = 0, mean_b = 0;
+    bool inside = true;
+    for (int64_t q = 0; q < P; ++q) {
+        const T u = centre[0] + (-half + step * (T)(q % patch)), v = centre[1] + (-half + step * (T)(q / patch));
+        for (int i = 0; i < 3; ++i) s.hom[q][i] = s.H[3 * i] * u + s.H[3 * i + 1] * v + s.H[3 * i + 2];
+        s.ws[q] = safe_z(s.hom[q][2]);
+        const T un = s.hom[q][0] / s.ws[q], vn = s.hom[q][1] / s.ws[q];
+        inside = inside && un >= 0 && un < (T)w && vn >= 0 && vn < (T)h && s.hom[q][2] > 0;
+        s.a[q] = sample(ref, u, v, W, Hh);
+        s.b[q] = sample(nbr, un, vn, w, h);
+        mean_a += s.a[q];
+        mean_b += s.b[q];
+    }
+    mean_a /= (T)P;
+    mean_b /= (T)P;
+    s.cov = s.va = s.vb = 0;
+    for (int64_t q = 0; q < P; ++q) {
+        s.a[q] -= mean_a;
+        s.b[q] -= mean_b;
+        s.cov += s.a[q] * s.b[q];
+        s.va += s.a[q] * s.a[q];
+        s.vb += s.b[q] * s.b[q];
+    }
+    s.cov /= (T)P;
+    s.va /= (T)P;
+    s.vb /= (T)P;
+    s.S = std::sqrt(s.va * s.vb + (T)NCC_EPS);
+    s.ncc = s.cov / s.S;
+    s.defined = inside && d > 0 && s.va * s.vb > (T)NCC_EPS;
+}
+
+template <typename T>
+struct NccArgs {
+    const T *ref, *nbr, *centres, *normal, *distance;
+    int64_t W, H, w, h, K, M, patch;
+    T fx, fy, cx, cy, step;
+};
+
+template <typename T>
+void ncc_forward_impl(const NccArgs<T>& g, const std::vector<Pose<T>>& P, T* loss, bool* defined) {
+#pragma omp parallel for schedule(static)
+    for (int64_t e = 0; e < g.K * g.M; ++e) {
+        const int64_t k = e / g.M;
+        Patch<T> s;
+        ncc_patch(g.ref, g.W, g.H, g.nbr + k * g.w * g.h, g.w, g.h, g.centres + 2 * e, g.normal + 3 * e,
+                  g.distance[e], P[k], g.fx, g.fy, g.cx, g.cy, g.patch, g.step, s);
+        loss[e] = 1 - std::min(std::max(s.ncc, (T)-1), (T)1);
+        defined[e] = s.defined;
+    }
+}
+
+template <typename T>
+void ncc_backward_impl(const NccArgs<T>& g, const std::vector<Pose<T>>& P, const T* gloss, T* gn, T* gd) {
+    const int64_t Pn = g.patch * g.patch;
+#pragma omp parallel for schedule(static)
+    for (int64_t e = 0; e < g.K * g.M; ++e) {
+        gn[3 * e] = gn[3 * e + 1] = gn[3 * e + 2] = gd[e] = 0;
+        const int64_t k = e / g.M;
+        const T* nbr = g.nbr + k * g.w * g.h;
+        const T* n = g.normal + 3 * e;
+        Patch<T> s;
+        ncc_patch(g.ref, g.W, g.H, nbr, g.w, g.h, g.centres + 2 * e, n, g.distance[e], P[k], g.fx, g.fy, g.cx,
+                  g.cy, g.patch, g.step, s);
+        if (gloss[e] == 0 || s.ncc < -1 || s.ncc > 1) continue;  // clamp(-1, 1): flat outside
+        const T g_ncc = -gloss[e];
+        // ncc = cov / sqrt(va vb + eps): d/d b_q (means removed, so the mean's own term vanishes)
+        const T c_a = g_ncc / ((T)Pn * s.S), c_b = -g_ncc * s.cov * s.va / ((T)Pn * s.S * s.S * s.S);
+        T gH[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+        const T half = (T)(g.patch - 1) / 2 * g.step;
+        for (int64_t q = 0; q < Pn; ++q) {
+            const T g_b = c_a * s.a[q] + c_b * s.b[q];
+            const T u = g.centres[2 * e] + (-half + g.step * (T)(q % g.patch));
+            const T v = g.centres[2 * e + 1] + (-half + g.step * (T)(q / g.patch));
+            const T* hq = s.hom[q];
+            T du, dv;
+            sample(nbr, hq[0] / s.ws[q], hq[1] / s.ws[q], g.w, g.h, &du, &dv);
+            const T gu = g_b * du, gv = g_b * dv;
+            T gh[3] = {gu / s.ws[q], gv / s.ws[q], 0};
+            if (std::abs(hq[2]) > (T)Z_EPS) gh[2] = -(gu * hq[0] + gv * hq[1]) / (s.ws[q] * s.ws[q]);
+            const T x[3] = {u, v, 1};
+            for (int i = 0; i < 3; ++i)
+                for (int j = 0; j < 3; ++j) gH[3 * i + j] += gh[i] * x[j];
+        }
+        // H = K_n A K_r^-1  ->  g_A = K_n^T g_H K_r^-T
+        T gHK[9];  // g_H K_r^-T
+        for (int i = 0; i < 3; ++i) {
+            gHK[3 * i] = gH[3 * i] / g.fx - gH[3 * i + 2] * g.cx / g.fx;
+            gHK[3 * i + 1] = gH[3 * i + 1] / g.fy - gH[3 * i + 2] * g.cy / g.fy;
+            gHK[3 * i + 2] = gH[3 * i + 2];
+        }
+        const Pose<T>& Q = P[k];
+        T gA[9];
+        for (int j = 0; j < 3; ++j) {
+            gA[j] = Q.fx * gHK[j];
+            gA[3 + j] = Q.fy * gHK[3 + j];
+            gA[6 + j] = Q.cx * gHK[j] + Q.cy * gHK[3 + j] + gHK[6 + j];
+        }
+        // A = R - t n^T / dd
+        T g_dd = 0;
+        for (int j = 0; j < 3; ++j) {
+            T tg = 0;
+            for (int i = 0; i < 3; ++i) tg += gA[3 * i + j] * Q.t[i];
+            gn[3 * e + j] = -tg / s.dd;
+            g_dd += tg * n[j] / (s.dd * s.dd);
+        }
+        gd[e] = g.distance[e] >= (T)DIST_FLOOR ? g_dd : 0;
+    }
+}
+
 }  // namespace
 
 std::vector<torch::Tensor> roundtrip_forward(torch::Tensor depth_ref, torch::Tensor depth_nbrs, torch::Tensor R,
@@ -230,4 +381,63 @@ std::vector<torch::Tensor> roundtrip_backward(torch::Tensor depth_ref, torch::Te
                                 buffers.data_ptr<scalar_t>());
     });
     return {grad_ref, buffers.sum(0)};
+}
+
+namespace {
+
+template <typename T>
+NccArgs<T> ncc_args(const torch::Tensor& ref_grey, const torch::Tensor& nbr_greys, const torch::Tensor& centres,
+                    const torch::Tensor& normal, const torch::Tensor& distance, double fx, double fy, double cx,
+                    double cy, int64_t patch, double step) {
+    NccArgs<T> g;
+    g.ref = ref_grey.data_ptr<T>(), g.nbr = nbr_greys.data_ptr<T>(), g.centres = centres.data_ptr<T>();
+    g.normal = normal.data_ptr<T>(), g.distance = distance.data_ptr<T>();
+    g.H = ref_grey.size(0), g.W = ref_grey.size(1), g.h = nbr_greys.size(1), g.w = nbr_greys.size(2);
+    g.K = centres.size(0), g.M = centres.size(1), g.patch = patch;
+    g.fx = fx, g.fy = fy, g.cx = cx, g.cy = cy, g.step = step;
+    return g;
+}
+
+void check_patch(int64_t patch) {
+    TORCH_CHECK(patch >= 1 && patch * patch <= 64, "NCC patch of ", patch, "x", patch, ": at most 8x8 here");
+}
+
+}  // namespace
+
+// 1 - NCC (K, M) and where it is defined, for the patches around ``centres`` (K, M, 2; u, v)
+// of the reference grey image (H, W), warped into neighbour k's grey image (K, h, w) by the
+// planes (normal (K, M, 3), distance (K, M)) through the relative poses R, t and intrinsics.
+std::vector<torch::Tensor> ncc_forward(torch::Tensor ref_grey, torch::Tensor nbr_greys, torch::Tensor centres,
+                                       torch::Tensor normal, torch::Tensor distance, torch::Tensor R, torch::Tensor t,
+                                       torch::Tensor nbr_intrinsics, double fx, double fy, double cx, double cy,
+                                       int64_t patch, double step) {
+    check_patch(patch);
+    ref_grey = ref_grey.contiguous(), nbr_greys = nbr_greys.contiguous(), centres = centres.contiguous();
+    normal = normal.contiguous(), distance = distance.contiguous();
+    auto loss = torch::empty({centres.size(0), centres.size(1)}, distance.options());
+    auto defined = torch::empty({centres.size(0), centres.size(1)}, distance.options().dtype(torch::kBool));
+    AT_DISPATCH_FLOATING_TYPES(distance.scalar_type(), "eve3d_ncc_forward", [&] {
+        ncc_forward_impl<scalar_t>(
+            ncc_args<scalar_t>(ref_grey, nbr_greys, centres, normal, distance, fx, fy, cx, cy, patch, step),
+            poses<scalar_t>(R, t, nbr_intrinsics), loss.data_ptr<scalar_t>(), defined.data_ptr<bool>());
+    });
+    return {loss, defined};
+}
+
+// Gradients of the loss for the planes: normal (K, M, 3) and distance (K, M).
+std::vector<torch::Tensor> ncc_backward(torch::Tensor ref_grey, torch::Tensor nbr_greys, torch::Tensor centres,
+                                        torch::Tensor normal, torch::Tensor distance, torch::Tensor R,
+                                        torch::Tensor t, torch::Tensor nbr_intrinsics, double fx, double fy,
+                                        double cx, double cy, int64_t patch, double step, torch::Tensor grad_loss) {
+    check_patch(patch);
+    ref_grey = ref_grey.contiguous(), nbr_greys = nbr_greys.contiguous(), centres = centres.contiguous();
+    normal = normal.contiguous(), distance = distance.contiguous(), grad_loss = grad_loss.contiguous();
+    auto g_normal = torch::empty_like(normal), g_distance = torch::empty_like(distance);
+    AT_DISPATCH_FLOATING_TYPES(distance.scalar_type(), "eve3d_ncc_backward", [&] {
+        ncc_backward_impl<scalar_t>(
+            ncc_args<scalar_t>(ref_grey, nbr_greys, centres, normal, distance, fx, fy, cx, cy, patch, step),
+            poses<scalar_t>(R, t, nbr_intrinsics), grad_loss.data_ptr<scalar_t>(), g_normal.data_ptr<scalar_t>(),
+            g_distance.data_ptr<scalar_t>());
+    });
+    return {g_normal, g_distance};
 }
