@@ -25,8 +25,8 @@ from tqdm import tqdm
 from eve3d.fileio import atomic_dir, atomic_path, write_image
 from eve3d.gaussians import GaussianModel
 from eve3d.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
-from eve3d.losses import (depth_normal_loss, depth_to_normal, depth_to_points, forward_backward_error, geometric_loss,
-                          ncc_loss, rgb_loss)
+from eve3d.losses import (CameraStack, depth_normal_loss, depth_to_normal, depth_to_points, forward_backward_error,
+                          geometric_loss, ncc_loss, rgb_loss)
 from eve3d.maps import save_maps
 from eve3d.methods import uses_priors
 from eve3d.neighbours import select_neighbours
@@ -41,29 +41,39 @@ from eve3d.view_report import view_metrics, write_previews
 from eve3d.views import View, Views
 
 
-def multiview_pair(ref: View, nbr: View, depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,
-                   nbr_depth: torch.Tensor, mask: torch.Tensor, s: JointSettings, generator: torch.Generator,
-                   with_ncc: bool = True
-                   ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None, torch.Tensor]:
-    """PGSR's multi-view terms for one reference–neighbour pair, shared by PGSR's loss (the
-    neighbour's depth rendered) and Eve3D's LBA (the neighbour's prior D̂_n). ``depth``,
-    ``normal`` and ``distance`` are the reference's depth and plane (rendered, or of the
-    reference prior). Returns the geometric term mean(exp(−φ)·φ) over the pixels of
-    ``mask`` whose forward–backward error φ is below ``mv_threshold``, the photometric
-    term 1 − NCC of ``ncc_patch`` patches warped by the plane-induced homography at
-    ``ncc_pixels`` of them drawn at random, as the sum of its exp(−φ)-weighted values and
-    the count of pixels where it is defined (None when none is drawn), and the pixels whose
-    round trip is defined and closes within ``mv_threshold`` (whatever ``mask``)."""
-    phi, defined = forward_backward_error(depth, nbr_depth, ref.cam, nbr.cam)
+def multiview_terms(ref: View, nbrs: list[View], depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,
+                    nbr_depths: list[torch.Tensor], mask: torch.Tensor, s: JointSettings, generator: torch.Generator,
+                    with_ncc: bool = True
+                    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None, torch.Tensor]:
+    """PGSR's multi-view terms of one reference against K neighbours at once, shared by
+    PGSR's loss (one neighbour, its depth rendered) and Eve3D's LBA (K neighbours, their
+    priors D̂_n). ``depth``, ``normal`` and ``distance`` are the reference's depth and plane
+    (rendered, or of the reference prior). Per neighbour k (tensors of shape (K,)): the
+    geometric term mean(exp(−φ)·φ) over the pixels of ``mask`` whose forward–backward error
+    φ is below ``mv_threshold``; the photometric term 1 − NCC of ``ncc_patch`` patches
+    warped by the plane-induced homography at ``ncc_pixels`` of those pixels drawn at random,
+    as the sum of its exp(−φ)-weighted values and the count of pixels where it is defined
+    (None when no pixel is drawn); and (K, H, W) the pixels whose round trip is defined and
+    closes within ``mv_threshold`` (whatever ``mask``)."""
+    cams = CameraStack([n.cam for n in nbrs])
+    phi, defined = forward_backward_error(depth, nbr_depths, ref.cam, cams)
     geo, valid = geometric_loss(phi, defined & mask, s.mv_threshold)
-    idx = valid.flatten().nonzero().squeeze(1)
     ncc_term = None
-    if len(idx) and with_ncc:  # (sum, count) apart: PGSR scales the sum before dividing
-        pick = idx[torch.randperm(len(idx), generator=generator)[:s.ncc_pixels].to(idx.device)]
-        pixels = torch.stack([pick // ref.cam.width, pick % ref.cam.width], -1)
-        ncc, ok = ncc_loss(ref.image, nbr.image, ref.cam, nbr.cam, normal, distance, pixels, s.ncc_patch)
-        w = torch.exp(-phi.flatten()[pick]).detach() * ok
-        ncc_term = (ncc * w).sum(), ok.sum().clamp_min(1)
+    if with_ncc:  # (sum, count) apart: PGSR scales the sum before dividing
+        picks = [idx[torch.randperm(len(idx), generator=generator)[:s.ncc_pixels].to(idx.device)]
+                 for idx in (v.flatten().nonzero().squeeze(1) for v in valid)]
+        drawn = max(len(p) for p in picks)
+        if drawn:  # each neighbour's draw, padded to the longest with pixel 0 (not counted)
+            pick = torch.zeros(len(nbrs), drawn, dtype=torch.long, device=depth.device)
+            counted = torch.zeros(len(nbrs), drawn, dtype=torch.bool, device=depth.device)
+            for k, p in enumerate(picks):
+                pick[k, :len(p)], counted[k, :len(p)] = p, True
+            pixels = torch.stack([pick // ref.cam.width, pick % ref.cam.width], -1)
+            ncc, ok = ncc_loss(ref.grey, [n.grey for n in nbrs], ref.cam, cams, normal, distance, pixels,
+                               s.ncc_patch)
+            ok = ok & counted
+            w = torch.exp(-phi.flatten(1).gather(1, pick)).detach() * ok
+            ncc_term = (ncc * w).sum(-1), ok.sum(-1).clamp_min(1)
     return geo, ncc_term, defined & (phi < s.mv_threshold)
 
 
@@ -91,15 +101,15 @@ class PriorState:
         return torch.exp(self.log_depth[i]) if self.learnable else self.star.depth[i]
 
     @torch.no_grad()
-    def update_confidence(self, i: int, neighbours: list[View], checks: list[torch.Tensor] | None = None) -> None:
+    def update_confidence(self, i: int, neighbours: list[View], checks: torch.Tensor | None = None) -> None:
         """M^c_i ← the stereo gave a depth there, and D_prior,i passes the forward–backward
         check (φ < ``mv_threshold``) against at least ``consistent_views`` neighbours' priors.
-        ``checks``: those pass masks, when the LBA has just computed them with D_prior,i."""
-        ref = self.views[i]
+        ``checks``: those pass masks (K, H, W), when the LBA has just computed them with D_prior,i."""
         if checks is None:
-            errors = [forward_backward_error(self.depth(i), self.depth(n.index), ref.cam, n.cam) for n in neighbours]
-            checks = [defined & (phi < self.s.mv_threshold) for phi, defined in errors]
-        passed = torch.stack(checks).sum(0)
+            phi, defined = forward_backward_error(self.depth(i), [self.depth(n.index) for n in neighbours],
+                                                  self.views[i].cam, CameraStack([n.cam for n in neighbours]))
+            checks = defined & (phi < self.s.mv_threshold)
+        passed = checks.sum(0)
         self.confidence[i] = (self.star.depth[i] > 0) & (passed >= self.s.consistent_views)
 
 
@@ -124,12 +134,12 @@ def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], 
         candidates = [j for j in neighbours[view.index] if j in train_set]
         if step >= s.mv_from and candidates and (s.geo_weight or s.ncc_weight):
             nbr = trainer.views[candidates[int(torch.randint(len(candidates), (1,), generator=trainer.generator))]]
-            out_n = trainer.render(nbr, step)
-            geo, ncc, _ = multiview_pair(view, nbr, out.depth, out.normal, out.distance, out_n.depth, covered, s,
-                                         trainer.generator, with_ncc=bool(s.ncc_weight))
-            t["mv_geo"] = s.geo_weight * geo
+            out_n = trainer.render(nbr, step, geometry_only=True)  # only its depth is used
+            geo, ncc, _ = multiview_terms(view, [nbr], out.depth, out.normal, out.distance, [out_n.depth], covered,
+                                          s, trainer.generator, with_ncc=bool(s.ncc_weight))
+            t["mv_geo"] = s.geo_weight * geo[0]
             if ncc is not None:
-                t["mv_ncc"] = s.ncc_weight * ncc[0] / ncc[1]
+                t["mv_ncc"] = s.ncc_weight * ncc[0][0] / ncc[1][0]
         if priors is not None and step >= s.prior_from:
             t.update(prior_terms(step, view, out, covered, [trainer.views[j] for j in candidates], priors, s,
                                  trainer.generator))
@@ -169,12 +179,9 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
             depth = priors.depth(i)
             normal, distance = prior_plane(depth, view, s.prior_normal_span)
             mask = (priors.star.depth[i] > 0) & (normal.norm(dim=-1) > 0)
-        total, checks = 0.0, []
-        for nbr in neighbours:
-            geo, ncc, passed = multiview_pair(view, nbr, depth, normal, distance, priors.depth(nbr.index), mask, s,
-                                              generator)
-            total = total + geo + (0.0 if ncc is None else ncc[0] / ncc[1])
-            checks.append(passed)
+        geo, ncc, checks = multiview_terms(view, neighbours, depth, normal, distance,
+                                           [priors.depth(n.index) for n in neighbours], mask, s, generator)
+        total = geo.sum() + (0.0 if ncc is None else (ncc[0] / ncc[1]).sum())
         t["lba"] = s.lba_weight * total / len(neighbours)
         # before T_joint the reference is the prior itself: its checks are the ones M^c needs
         priors.update_confidence(i, neighbours, None if joint else checks)

@@ -6,6 +6,7 @@ the camera; a pixel (u, v) has its centre at (u + 0.5, v + 0.5).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
@@ -24,12 +25,13 @@ def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5)
     """Mean SSIM of two (H, W, C) images in [0, 1] (3DGS's Gaussian window, zero padding)."""
     x, y = a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]
     c = x.shape[1]
-    w = _gaussian_window(window, sigma, c, x)
-    blur = lambda t: F.conv2d(t, w, padding=window // 2, groups=c)  # noqa: E731
-    mu_x, mu_y = blur(x), blur(y)
-    var_x = blur(x * x) - mu_x**2
-    var_y = blur(y * y) - mu_y**2
-    cov = blur(x * y) - mu_x * mu_y
+    # the five blurred maps in one grouped convolution (one call, forward and backward)
+    stacked = torch.cat([x, y, x * x, y * y, x * y], 1)
+    w = _gaussian_window(window, sigma, 5 * c, x)
+    mu_x, mu_y, xx, yy, xy = F.conv2d(stacked, w, padding=window // 2, groups=5 * c).split(c, 1)
+    var_x = xx - mu_x**2
+    var_y = yy - mu_y**2
+    cov = xy - mu_x * mu_y
     c1, c2 = 0.01**2, 0.03**2
     s = ((2 * mu_x * mu_y + c1) * (2 * cov + c2)) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))
     return s.mean()
@@ -84,20 +86,128 @@ def depth_normal_loss(depth: torch.Tensor, normal: torch.Tensor, image: torch.Te
     return (err * mask).sum() / mask.sum().clamp_min(1)
 
 
-def relative_pose(ref: CameraTensors, nbr: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
-    """(R, t) taking reference-camera coordinates to neighbour-camera coordinates."""
-    R = nbr.R @ ref.R.T
-    return R, nbr.t - R @ ref.t
+class CameraStack:
+    """K pinhole cameras as batched tensors, for the multi-view terms of one reference view
+    against K neighbours at once (a few large tensor operations instead of K times as many
+    small ones). Broadcasts against (K, ..., 2) pixel coordinates."""
+
+    def __init__(self, cams: Sequence[CameraTensors]):
+        opts = dict(dtype=cams[0].R.dtype, device=cams[0].R.device)
+        self.cams = list(cams)
+        self.R = torch.stack([c.R for c in cams])  # (K, 3, 3)
+        self.t = torch.stack([c.t for c in cams])  # (K, 3)
+        self.focal = torch.tensor([[c.fx, c.fy] for c in cams], **opts)  # (K, 2)
+        self.centre = torch.tensor([[c.cx, c.cy] for c in cams], **opts)  # (K, 2)
+        self.size = torch.tensor([[c.width, c.height] for c in cams], **opts)  # (K, 2)
+
+    def __len__(self) -> int:
+        return len(self.cams)
+
+    def per_camera(self, x: torch.Tensor, ndim: int) -> torch.Tensor:
+        """(K, C) → (K, 1, …, 1, C), to broadcast against (K, …, C) with ``ndim`` dims."""
+        return x.reshape(len(self), *([1] * (ndim - 2)), x.shape[-1])
+
+    def project(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(K, ..., 3) points in each camera's frame → pixel coordinates (K, ..., 2) and z."""
+        z = points[..., 2:]
+        zs = torch.where(z.abs() > 1e-8, z, torch.full_like(z, 1e-8))
+        n = points.dim()
+        return self.per_camera(self.focal, n) * points[..., :2] / zs + self.per_camera(self.centre, n), z[..., 0]
+
+    def rays_at(self, uv: torch.Tensor) -> torch.Tensor:
+        """(K, ..., 3) camera-space rays through pixel coordinates (K, ..., 2)."""
+        n = uv.dim()
+        xy = (uv - self.per_camera(self.centre, n)) / self.per_camera(self.focal, n)
+        return torch.cat([xy, torch.ones_like(xy[..., :1])], -1)
+
+    def inside(self, uv: torch.Tensor) -> torch.Tensor:
+        """(K, ...) whether pixel coordinates (K, ..., 2) fall inside each camera's image."""
+        return ((uv >= 0) & (uv < self.per_camera(self.size, uv.dim()))).all(-1)
+
+    def K(self) -> torch.Tensor:
+        """(K, 3, 3) intrinsic matrices."""
+        k = torch.zeros(len(self), 3, 3, dtype=self.R.dtype, device=self.R.device)
+        k[:, 0, 0], k[:, 1, 1] = self.focal[:, 0], self.focal[:, 1]
+        k[:, :2, 2], k[:, 2, 2] = self.centre, 1
+        return k
 
 
-def _sample(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """Bilinear lookup of (H, W, C) ``image`` at pixel coordinates ``uv`` (..., 2) (pixel
-    centres at +0.5); the border value continues outside (callers mask what falls outside)."""
-    h, w = image.shape[:2]
-    grid = torch.stack([uv[..., 0] / w * 2 - 1, uv[..., 1] / h * 2 - 1], -1)
-    out = F.grid_sample(image.permute(2, 0, 1)[None], grid.reshape(1, -1, 1, 2), align_corners=False,
-                        padding_mode="border")
-    return out[0, :, :, 0].T.reshape(*uv.shape[:-1], image.shape[2])
+def relative_poses(ref: CameraTensors, nbrs: CameraStack) -> tuple[torch.Tensor, torch.Tensor]:
+    """(R (K, 3, 3), t (K, 3)) taking reference-camera coordinates to each neighbour's."""
+    R = nbrs.R @ ref.R.T
+    return R, nbrs.t - R @ ref.t
+
+
+def _sample(maps: Sequence[torch.Tensor], uv: torch.Tensor) -> torch.Tensor:
+    """Bilinear lookup of K (H, W, C) ``maps`` at pixel coordinates ``uv`` (K, ..., 2), map
+    k at uv[k] (pixel centres at +0.5); the border value continues outside (callers mask
+    what falls outside). Returns (K, ..., C)."""
+    k, c = len(maps), maps[0].shape[2]
+    if any(m.shape != maps[0].shape for m in maps):  # sizes differ: one map at a time
+        return torch.cat([_sample([m], p[None]) for m, p in zip(maps, uv)])
+    h, w = maps[0].shape[:2]
+    grid = torch.stack([uv[..., 0] / w * 2 - 1, uv[..., 1] / h * 2 - 1], -1).reshape(k, -1, 1, 2)
+    images = torch.stack(list(maps)).permute(0, 3, 1, 2)
+    out = F.grid_sample(images, grid, align_corners=False, padding_mode="border")  # (K, C, L, 1)
+    return out[..., 0].transpose(1, 2).reshape(*uv.shape[:-1], c)
+
+
+def forward_backward_error(depth_ref: torch.Tensor, depth_nbrs: Sequence[torch.Tensor], ref: CameraTensors,
+                           nbrs: CameraStack, fused: bool | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """PGSR's multi-view geometric check against K neighbours at once. Each reference pixel
+    is back-projected with ``depth_ref`` (H, W), projected into neighbour k, given that
+    neighbour's depth there (bilinear in ``depth_nbrs[k]``), back-projected and projected
+    into the reference again. Returns φ (K, H, W), the pixel distance of each round trip,
+    and whether the round trip was defined (K, H, W).
+
+    ``fused``: compute it in one pass of the C++ extension (``csrc/roundtrip.cpp``, an
+    analytic backward), which by default it does on the CPU when the neighbours' maps share a
+    size and the extension builds; else with the PyTorch operations below (the reference)."""
+    R, t = relative_poses(ref, nbrs)
+    if fused is None:
+        from eve3d.render import cpu
+
+        fused = (depth_ref.device.type == "cpu" and all(d.shape == depth_nbrs[0].shape for d in depth_nbrs)
+                 and cpu.available())
+    if fused:
+        intrinsics = torch.cat([nbrs.focal, nbrs.centre], 1).to(depth_ref.dtype)
+        return _RoundTrip.apply(depth_ref, torch.stack(list(depth_nbrs)), R.to(depth_ref.dtype),
+                                t.to(depth_ref.dtype), intrinsics, (ref.fx, ref.fy, ref.cx, ref.cy))
+    p_ref = depth_to_points(depth_ref, ref)
+    p_nbr = p_ref.reshape(1, -1, 3) @ R.transpose(1, 2) + t[:, None]  # (K, HW, 3)
+    uv_n, z_n = nbrs.project(p_nbr)
+    d_n = _sample([d[..., None] for d in depth_nbrs], uv_n)[..., 0]
+    back = (nbrs.rays_at(uv_n) * d_n[..., None] - t[:, None]) @ R  # neighbour → reference: Rᵀ (x − t)
+    uv_r, z_r = _project(back, ref)
+    shape = (len(nbrs), *depth_ref.shape)
+    phi = (uv_r - ref.pixel_centres().reshape(1, -1, 2)).norm(dim=-1).reshape(shape)
+    defined = (depth_ref > 0).reshape(1, -1) & (z_n > 0) & (d_n > 0) & (z_r > 0) & nbrs.inside(uv_n)
+    return phi, defined.reshape(shape)
+
+
+class _RoundTrip(torch.autograd.Function):
+    """:func:`forward_backward_error`'s φ and definedness from the C++ extension; gradients
+    reach the reference depth and every neighbour depth."""
+
+    @staticmethod
+    def forward(ctx, depth_ref, depth_nbrs, R, t, intrinsics, ref_intrinsics):
+        from eve3d.render import cpu
+
+        args = (R, t, intrinsics, *ref_intrinsics)
+        phi, defined = cpu.extension().roundtrip_forward(depth_ref.detach(), depth_nbrs.detach(), *args)
+        ctx.save_for_backward(depth_ref, depth_nbrs)
+        ctx.args = args
+        ctx.mark_non_differentiable(defined)
+        return phi, defined
+
+    @staticmethod
+    def backward(ctx, grad_phi, _):
+        from eve3d.render import cpu
+
+        depth_ref, depth_nbrs = ctx.saved_tensors
+        grad_ref, grad_nbrs = cpu.extension().roundtrip_backward(depth_ref.detach(), depth_nbrs.detach(), *ctx.args,
+                                                                 grad_phi)
+        return grad_ref, grad_nbrs, None, None, None, None
 
 
 def _project(points: torch.Tensor, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
@@ -107,68 +217,90 @@ def _project(points: torch.Tensor, cam: CameraTensors) -> tuple[torch.Tensor, to
     return uv, z
 
 
-def forward_backward_error(depth_ref: torch.Tensor, depth_nbr: torch.Tensor, ref: CameraTensors,
-                           nbr: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
-    """PGSR's multi-view geometric check. Each reference pixel is back-projected with
-    ``depth_ref``, projected into the neighbour, given the neighbour's depth there
-    (bilinear), back-projected and projected into the reference again. Returns φ (H, W),
-    the pixel distance of that round trip, and whether the round trip was defined."""
-    R, t = relative_pose(ref, nbr)
-    p_ref = depth_to_points(depth_ref, ref)
-    uv_n, z_n = _project(p_ref @ R.T + t, nbr)
-    d_n = _sample(depth_nbr[..., None], uv_n)[..., 0]
-    back = (nbr.rays_at(uv_n) * d_n[..., None] - t) @ R  # neighbour → reference: Rᵀ (x − t)
-    uv_r, z_r = _project(back, ref)
-    phi = (uv_r - ref.pixel_centres()).norm(dim=-1)
-    inside = (uv_n[..., 0] >= 0) & (uv_n[..., 0] < nbr.width) & (uv_n[..., 1] >= 0) & (uv_n[..., 1] < nbr.height)
-    defined = (depth_ref > 0) & (z_n > 0) & (d_n > 0) & (z_r > 0) & inside
-    return phi, defined
-
-
 def geometric_loss(phi: torch.Tensor, defined: torch.Tensor, threshold: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
-    """mean(exp(−φ)·φ) over pixels whose round trip closes within ``threshold`` px (the
-    weight is not differentiated); also returns that mask."""
+    """mean(exp(−φ)·φ) over the pixels of each (H, W) map of ``phi`` (..., H, W) whose round
+    trip closes within ``threshold`` px (the weight is not differentiated): shape (...);
+    also returns that mask."""
     valid = defined & (phi < threshold)
     w = torch.exp(-phi).detach()
-    return (w * phi * valid).sum() / valid.sum().clamp_min(1), valid
+    return (w * phi * valid).sum((-2, -1)) / valid.sum((-2, -1)).clamp_min(1), valid
 
 
-def plane_homography(ref: CameraTensors, nbr: CameraTensors, normal: torch.Tensor,
-                     distance: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) homographies H = K_n (R − t nᵀ/d) K_r⁻¹ induced by the planes n·x = −d
-    (reference camera space, n facing the camera, d > 0; n need not be unit length)."""
-    R, t = relative_pose(ref, nbr)
-    A = R - t[:, None] * normal[..., None, :] / distance[..., None, None]
-    return nbr.K() @ A @ torch.linalg.inv(ref.K())
+def plane_homographies(ref: CameraTensors, nbrs: CameraStack, normal: torch.Tensor,
+                       distance: torch.Tensor) -> torch.Tensor:
+    """(K, M, 3, 3) homographies H = K_n (R − t nᵀ/d) K_r⁻¹ into each neighbour k induced by
+    the planes n·x = −d (``normal`` (K, M, 3), ``distance`` (K, M), reference camera space,
+    n facing the camera, d > 0; n need not be unit length)."""
+    R, t = relative_poses(ref, nbrs)
+    A = R[:, None] - t[:, None, :, None] * normal[..., None, :] / distance[..., None, None]
+    return nbrs.K()[:, None] @ A @ torch.linalg.inv(ref.K())
 
 
-def ncc_loss(ref_image: torch.Tensor, nbr_image: torch.Tensor, ref: CameraTensors, nbr: CameraTensors,
+def ncc_loss(ref_grey: torch.Tensor, nbr_greys: Sequence[torch.Tensor], ref: CameraTensors, nbrs: CameraStack,
              normal: torch.Tensor, distance: torch.Tensor, pixels: torch.Tensor, patch: int = 7,
-             step: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
-    """Photometric multi-view loss 1 − NCC of ``patch``×``patch`` grey patches around the
-    reference ``pixels`` (M, 2 integer (row, col)), warped into the neighbour by each
+             step: float = 1.0, fused: bool | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Photometric multi-view loss 1 − NCC of ``patch``×``patch`` patches of grey images
+    ((H, W, 1) ``ref_grey``, one of ``nbr_greys`` per neighbour) around reference
+    ``pixels`` (K, M, 2 integer (row, col)), those of row k warped into neighbour k by each
     pixel's rendered plane (``normal`` (H, W, 3), ``distance`` (H, W)). Returns the per-
-    pixel loss (M,) in [0, 2] and where it is defined."""
+    pixel loss (K, M) in [0, 2] and where it is defined. ``fused``: as in
+    :func:`forward_backward_error` (the C++ path takes patches of up to 8×8)."""
+    centres = pixels.flip(-1).to(ref_grey.dtype) + 0.5  # (K, M, 2) as (u, v)
+    n = normal[pixels[..., 0], pixels[..., 1]]
+    d = distance[pixels[..., 0], pixels[..., 1]]
+    if fused is None:
+        from eve3d.render import cpu
+
+        fused = (ref_grey.device.type == "cpu" and patch <= 8 and all(g.shape == nbr_greys[0].shape for g in nbr_greys)
+                 and cpu.available())
+    if fused:
+        R, t = relative_poses(ref, nbrs)
+        dtype = ref_grey.dtype
+        intrinsics = torch.cat([nbrs.focal, nbrs.centre], 1).to(dtype)
+        greys = torch.stack([g[..., 0] for g in nbr_greys]).to(dtype)
+        return _FusedNcc.apply(ref_grey[..., 0], greys, centres, n.to(dtype), d.to(dtype), R.to(dtype), t.to(dtype),
+                               intrinsics, (ref.fx, ref.fy, ref.cx, ref.cy, patch, step))
     half = (patch - 1) / 2 * step
-    offs = torch.linspace(-half, half, patch, dtype=ref_image.dtype, device=ref_image.device)
+    offs = torch.linspace(-half, half, patch, dtype=ref_grey.dtype, device=ref_grey.device)
     dv, du = torch.meshgrid(offs, offs, indexing="ij")
-    centres = pixels.flip(-1).to(ref_image.dtype) + 0.5  # (M, 2) as (u, v)
-    uv_ref = centres[:, None, :] + torch.stack([du, dv], -1).reshape(1, -1, 2)  # (M, P, 2)
-    n = normal[pixels[:, 0], pixels[:, 1]]
-    d = distance[pixels[:, 0], pixels[:, 1]]
+    uv_ref = centres[..., None, :] + torch.stack([du, dv], -1).reshape(-1, 2)  # (K, M, P, 2)
     # n and d are both blended (scaled by the pixel's alpha): their ratio is the plane's.
-    H = plane_homography(ref, nbr, n, d.clamp_min(1e-6))
+    H = plane_homographies(ref, nbrs, n, d.clamp_min(1e-6))
     hom = torch.cat([uv_ref, torch.ones_like(uv_ref[..., :1])], -1) @ H.transpose(-1, -2)
     w = hom[..., 2]
     uv_nbr = hom[..., :2] / torch.where(w.abs() > 1e-8, w, torch.full_like(w, 1e-8))[..., None]
-    grey_ref = _sample(ref_image.mean(-1, keepdim=True), uv_ref)[..., 0]
-    grey_nbr = _sample(nbr_image.mean(-1, keepdim=True), uv_nbr)[..., 0]
+    grey_ref = _sample([ref_grey], uv_ref.reshape(1, -1, 2)).reshape(uv_ref.shape[:-1])
+    grey_nbr = _sample(nbr_greys, uv_nbr)[..., 0]
     a = grey_ref - grey_ref.mean(-1, keepdim=True)
     b = grey_nbr - grey_nbr.mean(-1, keepdim=True)
     cov = (a * b).mean(-1)
     var = (a * a).mean(-1) * (b * b).mean(-1)
     ncc = cov / torch.sqrt(var + 1e-8)
-    inside = ((uv_nbr[..., 0] >= 0) & (uv_nbr[..., 0] < nbr.width) & (uv_nbr[..., 1] >= 0)
-              & (uv_nbr[..., 1] < nbr.height) & (w > 0)).all(-1)
+    inside = (nbrs.inside(uv_nbr) & (w > 0)).all(-1)
     defined = inside & (d > 0) & (var > 1e-8)
     return (1 - ncc.clamp(-1, 1)), defined
+
+
+class _FusedNcc(torch.autograd.Function):
+    """:func:`ncc_loss` from the C++ extension; gradients reach the planes (normal, distance)."""
+
+    @staticmethod
+    def forward(ctx, ref_grey, nbr_greys, centres, normal, distance, R, t, intrinsics, settings):
+        from eve3d.render import cpu
+
+        ctx.inputs = (ref_grey, nbr_greys, centres)
+        ctx.args = (R, t, intrinsics, *settings)
+        ctx.save_for_backward(normal, distance)
+        loss, defined = cpu.extension().ncc_forward(ref_grey, nbr_greys, centres, normal.detach(), distance.detach(),
+                                                    *ctx.args)
+        ctx.mark_non_differentiable(defined)
+        return loss, defined
+
+    @staticmethod
+    def backward(ctx, grad_loss, _):
+        from eve3d.render import cpu
+
+        normal, distance = ctx.saved_tensors
+        g_normal, g_distance = cpu.extension().ncc_backward(*ctx.inputs, normal.detach(), distance.detach(),
+                                                            *ctx.args, grad_loss)
+        return None, None, None, g_normal, g_distance, None, None, None, None

@@ -6,6 +6,7 @@ photos the same way (the nvs protocol), so that both read, resize and split the 
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -27,6 +28,11 @@ class View:
     cam: CameraTensors
     image: torch.Tensor
     """(H, W, 3) float in [0, 1]."""
+
+    @functools.cached_property
+    def grey(self) -> torch.Tensor:
+        """(H, W, 1) the image's grey level (mean of the channels), for the NCC patches."""
+        return self.image.mean(-1, keepdim=True)
 
 
 def pick_device(setting: str) -> torch.device:

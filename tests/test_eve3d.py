@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from eve3d.joint import multiview_pair, prior_plane, setup_joint, train_joint
+from eve3d.joint import multiview_terms, prior_plane, setup_joint, train_joint
 from eve3d.settings import JointSettings
-from eve3d.losses import forward_backward_error
+from eve3d.losses import CameraStack, forward_backward_error
 from eve3d.maps import load_maps, save_maps
 from eve3d.methods import methods
 from eve3d.priors.learnable import resample_prior
@@ -24,13 +24,13 @@ from tests.helpers import joint_settings, run_cli
 
 # -- the LBA's geometry ----------------------------------------------------------------------
 
-def _plane_pair(tilt: float = 0.0) -> tuple[View, View, torch.Tensor]:
-    """Two views 0.3 apart along x of a textured plane 3 units ahead (tilted about y by
-    ``tilt`` rad), with the reference view's exact depth."""
+def _plane_views(tilt: float = 0.0, xs: tuple[float, ...] = (0.0, 0.3)) -> tuple[list[View], torch.Tensor]:
+    """Views at x = ``xs`` of a textured plane 3 units ahead (tilted about y by ``tilt``
+    rad), with the first (reference) view's exact depth."""
     K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
     n = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])  # faces the cameras
     views, depth_ref = [], None
-    for i, x in enumerate((0.0, 0.3)):
+    for i, x in enumerate(xs):
         cam = Camera(f"{i}.png", 64, 48, K, np.eye(3), np.array([-x, 0.0, 0.0]))
         ct = CameraTensors.from_camera(cam, torch.float64)
         rays = ct.rays().numpy()
@@ -43,21 +43,46 @@ def _plane_pair(tilt: float = 0.0) -> tuple[View, View, torch.Tensor]:
         views.append(View(i, cam, ct, image))
         if i == 0:
             depth_ref = torch.tensor(s)  # z of the reference camera (R = I)
-    return views[0], views[1], depth_ref
+    return views, depth_ref
+
+
+def _plane_pair(tilt: float = 0.0) -> tuple[View, View, torch.Tensor]:
+    """Two views 0.3 apart along x of the plane of :func:`_plane_views`."""
+    (ref, nbr), depth = _plane_views(tilt)
+    return ref, nbr, depth
+
+
+def test_multiview_terms_of_k_neighbours_at_once_equal_one_at_a_time():
+    xs = (0.3, -0.2, 0.15)
+    (ref, *nbrs), depth = _plane_views(0.3, (0.0, *xs))
+    nbr_depths = [_plane_views(0.3, (x,))[1] for x in xs]  # each neighbour's exact depth
+    wrong = depth * (1 + 0.02 * torch.sin(torch.arange(depth.numel(), dtype=depth.dtype) / 7).reshape(depth.shape))
+    normal, distance = prior_plane(wrong, ref)
+    mask = torch.ones_like(depth, dtype=torch.bool)
+    s = JointSettings(ncc_pixels=300)
+    together = multiview_terms(ref, nbrs, wrong, normal, distance, nbr_depths, mask, s, torch.Generator().manual_seed(3))
+    gen = torch.Generator().manual_seed(3)
+    apart = [multiview_terms(ref, [v], wrong, normal, distance, [d], mask, s, gen) for v, d in zip(nbrs, nbr_depths)]
+    geo, (ncc_sum, ncc_count), passed = together
+    assert passed.shape == (3, *depth.shape) and 0.1 < passed.float().mean() < 0.99
+    for k, (geo_k, (sum_k, count_k), passed_k) in enumerate(apart):
+        assert torch.equal(passed[k], passed_k[0])
+        assert torch.allclose(geo[k], geo_k[0], rtol=1e-9) and float(geo[k]) > 0
+        assert ncc_count[k] == count_k[0] and torch.allclose(ncc_sum[k], sum_k[0], rtol=1e-9)
 
 
 def test_lba_reprojection_returns_a_pixel_to_itself_with_exact_depth():
     ref, nbr, depth = _plane_pair()
     nbr_depth = torch.full_like(depth, 3.0)  # fronto-parallel: the neighbour sees z = 3 too
-    phi, defined = forward_backward_error(depth, nbr_depth, ref.cam, nbr.cam)
+    phi, defined = (x[0] for x in forward_backward_error(depth, [nbr_depth], ref.cam, CameraStack([nbr.cam])))
     assert defined.float().mean() > 0.6 and float(phi[defined].max()) < 1e-3
     s = JointSettings(ncc_pixels=400)
     normal, distance = prior_plane(depth, ref)
-    geo, ncc, _ = multiview_pair(ref, nbr, depth, normal, distance, nbr_depth, defined, s,
-                                 torch.Generator().manual_seed(0))
-    assert float(geo) < 1e-3
+    geo, ncc, _ = multiview_terms(ref, [nbr], depth, normal, distance, [nbr_depth], defined, s,
+                                  torch.Generator().manual_seed(0))
+    assert float(geo[0]) < 1e-3
     # 1 − NCC ≈ 0: the true plane's homography aligns the patches (up to the bilinear lookup)
-    assert float(ncc[0] / ncc[1]) < 5e-3
+    assert float(ncc[0][0] / ncc[1][0]) < 5e-3
 
 
 def test_homography_ncc_is_about_one_on_the_true_plane_and_lower_on_a_wrong_one():
@@ -70,7 +95,8 @@ def test_homography_ncc_is_about_one_on_the_true_plane_and_lower_on_a_wrong_one(
     for name, d in (("true", depth), ("20% far", depth * 1.2), ("50% far", depth * 1.5),
                     ("untilted", torch.full_like(depth, float(depth.mean())))):
         normal, distance = prior_plane(d, ref)
-        ncc, ok = ncc_loss(ref.image, nbr.image, ref.cam, nbr.cam, normal, distance, mask.nonzero())
+        ncc, ok = (x[0] for x in ncc_loss(ref.grey, [nbr.grey], ref.cam, CameraStack([nbr.cam]), normal, distance,
+                                          mask.nonzero()[None]))
         assert ok.float().mean() > 0.8
         scores[name] = 1 - float(ncc[ok].mean())  # the mean NCC
     assert scores["true"] > 0.999

@@ -178,6 +178,34 @@ def flat_gaussian(normal_cam, center, cam, size=0.4):
             torch.ones(1, 3, dtype=torch.float64))
 
 
+@pytest.mark.parametrize("backend", ["cpu", "torch"])
+def test_a_geometry_only_render_gives_the_same_geometry_and_gradients(backend):
+    """PGSR's neighbour render skips the colours: its depth, normals, alpha and their
+    gradients are those of the full render."""
+    from eve3d.gaussians import GaussianModel
+    from eve3d.render import render_model
+    from eve3d.settings import RenderSettings
+
+    means, quats, scales, opacities, colors = random_gaussians(150, seed=4)
+    model = GaussianModel.from_points(means.numpy(), colors.numpy(), sh_degree=1)
+    model.params.update(quats=quats, log_scales=scales.log())
+    model.params = {k: v.double() for k, v in model.params.items()}  # float64: no rounding in the comparison
+    cam = camera(tilt=0.1)
+    settings = RenderSettings(backend=backend, background=(0.2, 0.3, 0.4))
+    results = []
+    for geometry_only in (False, True):
+        params = {k: v.detach().clone().requires_grad_() for k, v in model.params.items()}
+        out = render_model(GaussianModel(params, 1), cam, settings, geometry_only=geometry_only)
+        (out.depth.sum() + out.normal.abs().sum() + out.alpha.sum() + out.distance.sum()).backward()
+        results.append((out, {k: params[k].grad for k in ("means", "quats", "log_scales", "logit_opacities")}))
+    (full, full_grads), (geometry, geometry_grads) = results
+    assert geometry.rgb.shape == (cam.height, cam.width, 0) and full.rgb.shape == (cam.height, cam.width, 3)
+    for name in ("depth", "normal", "alpha", "distance"):
+        assert torch.equal(getattr(full, name), getattr(geometry, name)), name
+    for name, grad in full_grads.items():
+        assert grad.abs().max() > 0 and torch.allclose(grad, geometry_grads[name], rtol=1e-10, atol=1e-12), name
+
+
 def test_flat_gaussian_facing_the_camera_renders_its_plane():
     cam = camera(32, 24)
     out = render(*flat_gaussian([0, 0, -1], [0.05, -0.02, 2.0], cam), cam, backend="cpu")

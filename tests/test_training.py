@@ -9,7 +9,8 @@ import torch
 from eve3d.densify import Densifier, reset_opacity
 from eve3d.gaussians import GaussianModel
 from eve3d.joint import train_joint
-from eve3d.losses import depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss
+from eve3d.losses import (CameraStack, depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss,
+                          ssim)
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Camera, Eve3dError
 from eve3d.settings import DensifySettings, JointSettings, TrainSettings, from_mapping
@@ -109,28 +110,137 @@ def test_multiview_losses_vanish_on_the_true_plane_and_not_off_it():
     cam_a, depth_a, img_a = a
     cam_b, depth_b, img_b = b
     assert torch.allclose(depth_to_normal(depth_a, cam_a)[1:-1, 1:-1], normal[1:-1, 1:-1], atol=1e-9)
-    phi, defined = forward_backward_error(depth_a, depth_b, cam_a, cam_b)
+    phi, defined = (x[0] for x in forward_backward_error(depth_a, [depth_b], cam_a, CameraStack([cam_b])))
     assert defined.float().mean() > 0.5 and phi[defined].max() < 0.01  # bilinear depth lookup: z is not affine in (u, v)
     loss, valid = geometric_loss(phi, defined)
     assert float(loss) < 0.01 and torch.equal(valid, defined)
     # 8 px of disparity here: a 5% depth error leaves the loop open by about 0.4 px, 20% by 1.6 px
-    phi_off, _ = forward_backward_error(depth_a * 1.05, depth_b, cam_a, cam_b)
+    phi_off = forward_backward_error(depth_a * 1.05, [depth_b], cam_a, CameraStack([cam_b]))[0][0]
     assert 0.3 < phi_off[defined].median() < 0.5
-    phi_off, _ = forward_backward_error(depth_a * 1.2, depth_b, cam_a, cam_b)
+    phi_off = forward_backward_error(depth_a * 1.2, [depth_b], cam_a, CameraStack([cam_b]))[0][0]
     assert phi_off[defined].median() > 1.0
     pixels = torch.stack(torch.meshgrid(torch.arange(10, 38, 3), torch.arange(10, 54, 3), indexing="ij"), -1).reshape(-1, 2)
-    ncc, ok = ncc_loss(img_a, img_b, cam_a, cam_b, normal, distance, pixels)
+    grey_a, grey_b, cams_b = img_a.mean(-1, keepdim=True), [img_b.mean(-1, keepdim=True)], CameraStack([cam_b])
+    ncc, ok = (x[0] for x in ncc_loss(grey_a, grey_b, cam_a, cams_b, normal, distance, pixels[None]))
     # exact up to the bilinear lookup in the neighbour (low-contrast patches feel it most)
     assert ok.float().mean() > 0.5 and ncc[ok].median() < 1e-3 and ncc[ok].max() < 0.02
-    ncc_off, ok_off = ncc_loss(img_a, img_b, cam_a, cam_b, normal, distance * 1.3, pixels)
+    ncc_off, ok_off = (x[0] for x in ncc_loss(grey_a, grey_b, cam_a, cams_b, normal, distance * 1.3, pixels[None]))
     assert ncc_off[ok & ok_off].mean() > 0.1
+
+
+def _round_trip_setup(dtype, width=40, height=30):
+    """A reference and three rotated, shifted neighbours with noisy depths near 3 (every
+    pixel a round trip that mostly closes, some leaving the neighbour's frame)."""
+    K = np.array([[44.0, 0, 20.3], [0, 46, 14.8], [0, 0, 1]])
+    cams = []
+    for i in range(4):
+        a = 0.06 * i
+        R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        cam = Camera(f"{i}.png", width, height, K, R, np.array([-0.15 * i, 0.02 * i, 0]))
+        cams.append(CameraTensors.from_camera(cam, dtype))
+    g = torch.Generator().manual_seed(0)
+    depth = 3 + 0.2 * torch.rand(height, width, generator=g, dtype=dtype)
+    nbr_depths = [3 + 0.2 * torch.rand(height, width, generator=g, dtype=dtype) for _ in range(3)]
+    return cams[0], CameraStack(cams[1:]), depth, nbr_depths
+
+
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-10), (torch.float32, 2e-4)])
+def test_fused_round_trip_matches_the_pytorch_reference(dtype, tol):
+    ref, nbrs, depth, nbr_depths = _round_trip_setup(dtype)
+    depth[0, :5] = 0  # no depth: undefined
+    results = []
+    for fused in (False, True):
+        d, n = depth.clone().requires_grad_(), [x.clone().requires_grad_() for x in nbr_depths]
+        phi, defined = forward_backward_error(d, n, ref, nbrs, fused=fused)
+        weights = torch.linspace(0.1, 1, phi.numel(), dtype=dtype).reshape(phi.shape)
+        (phi * weights * defined).sum().backward()
+        results.append((phi, defined, d.grad, torch.stack([x.grad for x in n])))
+    (phi, defined, g_ref, g_nbr), (phi_f, defined_f, g_ref_f, g_nbr_f) = results
+    assert torch.equal(defined, defined_f) and 0.5 < defined.float().mean() < 0.99
+    assert torch.allclose(phi_f[defined], phi[defined], rtol=tol, atol=tol)
+    assert g_ref.abs().max() > 0.1 and g_nbr.abs().max() > 0.1
+    assert torch.allclose(g_ref_f, g_ref, rtol=tol, atol=tol * 10) and torch.allclose(g_nbr_f, g_nbr, rtol=tol,
+                                                                                         atol=tol * 10)
+
+
+def test_fused_round_trip_gradients_pass_gradcheck():
+    ref, nbrs, depth, nbr_depths = _round_trip_setup(torch.float64, 12, 9)
+    defined = forward_backward_error(depth, nbr_depths, ref, nbrs, fused=True)[1]
+    assert defined.float().mean() > 0.7
+    phi = lambda d, *n: forward_backward_error(d, list(n), ref, nbrs, fused=True)[0] * defined  # noqa: E731
+    inputs = (depth.requires_grad_(), *[x.requires_grad_() for x in nbr_depths])
+    assert torch.autograd.gradcheck(phi, inputs, eps=1e-7, atol=1e-5)
+
+
+def _ncc_inputs(dtype):
+    """Grey images with a shared sinusoidal texture (shifted per neighbour, plus noise),
+    planes near the fronto-parallel z = 3, and 50 random pixels per neighbour."""
+    g = torch.Generator().manual_seed(1)
+    yy, xx = torch.meshgrid(torch.arange(30, dtype=dtype), torch.arange(40, dtype=dtype), indexing="ij")
+    grey = (0.5 + 0.3 * torch.sin(xx * 0.7) * torch.cos(yy * 0.5))[..., None]
+    greys = [(0.5 + 0.3 * torch.sin(xx * 0.7 + 0.3 * k) * torch.cos(yy * 0.5 - 0.2 * k)
+              + 0.05 * torch.rand(30, 40, generator=g, dtype=dtype))[..., None] for k in range(3)]
+    tilt = torch.tensor([0.05, -0.03, -1.0], dtype=dtype)
+    normal = torch.nn.functional.normalize(tilt + 0.1 * torch.randn(30, 40, 3, generator=g, dtype=dtype), dim=-1)
+    distance = 3 + 0.3 * torch.rand(30, 40, generator=g, dtype=dtype)
+    pixels = torch.stack([torch.randint(0, 30, (3, 50), generator=g), torch.randint(0, 40, (3, 50), generator=g)], -1)
+    return grey, greys, normal, distance, pixels
+
+
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-10), (torch.float32, 1e-4)])
+def test_fused_ncc_matches_the_pytorch_reference(dtype, tol):
+    ref, nbrs, _, _ = _round_trip_setup(dtype)
+    grey, greys, normal, distance, pixels = _ncc_inputs(dtype)
+    results = []
+    for fused in (False, True):
+        n, d = normal.clone().requires_grad_(), distance.clone().requires_grad_()
+        loss, ok = ncc_loss(grey, greys, ref, nbrs, n, d, pixels, fused=fused)
+        weights = torch.linspace(0.1, 1, loss.numel(), dtype=dtype).reshape(loss.shape)
+        (loss * weights * ok).sum().backward()
+        results.append((loss, ok, n.grad, d.grad))
+    (loss, ok, g_n, g_d), (loss_f, ok_f, g_n_f, g_d_f) = results
+    assert torch.equal(ok, ok_f) and 0.4 < ok.float().mean() < 0.9
+    assert torch.allclose(loss_f[ok], loss[ok], atol=tol) and 0.3 < loss[ok].mean() < 1.2
+    assert g_n.abs().max() > 1 and g_d.abs().max() > 1
+    assert torch.allclose(g_n_f, g_n, atol=tol * 10) and torch.allclose(g_d_f, g_d, atol=tol * 10)
+
+
+def test_fused_ncc_gradients_pass_gradcheck():
+    ref, nbrs, _, _ = _round_trip_setup(torch.float64)
+    grey, greys, normal, distance, pixels = _ncc_inputs(torch.float64)
+    ok = ncc_loss(grey, greys, ref, nbrs, normal, distance, pixels[:, :8], fused=True)[1]
+    assert ok.float().mean() > 0.4
+    loss = lambda n, d: ncc_loss(grey, greys, ref, nbrs, n, d, pixels[:, :8], fused=True)[0] * ok  # noqa: E731
+    assert torch.autograd.gradcheck(loss, (normal.requires_grad_(), distance.requires_grad_()), eps=1e-7, atol=1e-5)
+
+
+def test_ssim_matches_a_reference_with_zero_padding():
+    """3DGS's SSIM (11×11 Gaussian window, σ 1.5, zero padding) against scipy's correlate."""
+    from scipy.ndimage import correlate
+
+    rng = np.random.default_rng(0)
+    a = rng.random((30, 41, 3))
+    b = np.clip(a + 0.1 * rng.normal(size=a.shape), 0, 1)
+    x = np.arange(11) - 5.0
+    g = np.exp(-x**2 / (2 * 1.5**2))
+    window = np.outer(g, g) / g.sum() ** 2
+    blur = lambda m: correlate(m, window, mode="constant", cval=0.0)  # noqa: E731
+    maps = []
+    for ch in range(3):
+        u, v = a[..., ch], b[..., ch]
+        mu_u, mu_v = blur(u), blur(v)
+        var_u, var_v, cov = blur(u * u) - mu_u**2, blur(v * v) - mu_v**2, blur(u * v) - mu_u * mu_v
+        c1, c2 = 0.01**2, 0.03**2
+        maps.append((2 * mu_u * mu_v + c1) * (2 * cov + c2) / ((mu_u**2 + mu_v**2 + c1) * (var_u + var_v + c2)))
+    assert abs(float(ssim(torch.tensor(a), torch.tensor(b))) - np.mean(maps)) < 1e-12
 
 
 def test_ncc_gradient_reaches_the_plane():
     (a, b), normal, distance = _plane_views()
     d = (distance * 1.1).requires_grad_()
     pixels = torch.tensor([[24, 32], [20, 20], [30, 40]])
-    ncc, ok = ncc_loss(a[2], b[2], a[0], b[0], normal, d, pixels)
+    ncc, ok = (x[0] for x in ncc_loss(a[2].mean(-1, keepdim=True), [b[2].mean(-1, keepdim=True)], a[0],
+                                      CameraStack([b[0]]), normal, d, pixels[None]))
     ncc[ok].sum().backward()
     assert d.grad[24, 32] != 0 and torch.count_nonzero(d.grad) == 3
 

@@ -155,24 +155,30 @@ def _rasterize(backend: str, proj: Projected | None, means: torch.Tensor, quats:
 
 
 def render_model(model: GaussianModel, camera: Camera | CameraTensors, rendering: RenderSettings,
-                 sh_degree: int | None = None, *, colors: torch.Tensor | None = None, **kw) -> RenderOutput:
+                 sh_degree: int | None = None, *, colors: torch.Tensor | None = None, geometry_only: bool = False,
+                 **kw) -> RenderOutput:
     """Render ``model`` from ``camera`` as ``rendering`` says (background, backend,
     antialiasing): the one way every stage renders a model, so a trained model renders
     elsewhere (the right views, the depth maps, the nvs protocol) as it was trained.
 
     Colours: the model's SH up to ``sh_degree`` (default: all) seen from the camera centre,
     unless ``colors`` (N, C) are given. A :class:`Camera` gives its centre from its float64
-    pose; the training views' :class:`CameraTensors` from their own R and t (−Rᵀt). ``kw``
-    goes to :func:`render` (``extras``, ``absgrad``, ...)."""
+    pose; the training views' :class:`CameraTensors` from their own R and t (−Rᵀt).
+    ``geometry_only``: no colours at all (``rgb`` is (H, W, 0)), for a render whose depth,
+    normals and alpha are all that is used (PGSR's neighbour view): no SH evaluation, three
+    channels fewer to composite and differentiate. ``kw`` goes to :func:`render`
+    (``extras``, ``absgrad``, ...)."""
     p = model.params
     means = p["means"]
-    if colors is None:
+    background = torch.tensor(rendering.background, dtype=means.dtype, device=means.device)
+    if geometry_only:
+        colors, background = means.new_zeros(len(model), 0), means.new_zeros(0)
+    elif colors is None:
         if isinstance(camera, CameraTensors):
             centre = -camera.R.T @ camera.t
         else:
             centre = torch.tensor(camera.center, dtype=means.dtype, device=means.device)
         colors = model.colors(centre, sh_degree)
-    background = torch.tensor(rendering.background, dtype=means.dtype, device=means.device)
     return render(means, p["quats"], model.scales, model.opacities, colors, camera, background=background,
                   backend=rendering.backend, antialiased=rendering.antialiased, **kw)
 

@@ -8,7 +8,7 @@ outside the image culled; an opacity-aware bounding box (extent min(3.33, √(2 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -32,6 +32,8 @@ class CameraTensors:
     cy: float
     width: int
     height: int
+    _centres: torch.Tensor | None = field(default=None, init=False, repr=False, compare=False)
+    _rays: torch.Tensor | None = field(default=None, init=False, repr=False, compare=False)
 
     @classmethod
     def from_camera(cls, camera, dtype: torch.dtype = torch.float32, device=None) -> "CameraTensors":
@@ -54,11 +56,14 @@ class CameraTensors:
                             dtype=self.R.dtype, device=self.R.device)
 
     def pixel_centres(self) -> torch.Tensor:
-        """(H, W, 2) pixel-centre coordinates (u + 0.5, v + 0.5)."""
-        opts = dict(dtype=self.R.dtype, device=self.R.device)
-        v, u = torch.meshgrid(torch.arange(self.height, **opts) + 0.5, torch.arange(self.width, **opts) + 0.5,
-                              indexing="ij")
-        return torch.stack([u, v], -1)
+        """(H, W, 2) pixel-centre coordinates (u + 0.5, v + 0.5); computed once per camera
+        (the losses ask for it every step), so never modify it in place."""
+        if self._centres is None:
+            opts = dict(dtype=self.R.dtype, device=self.R.device)
+            v, u = torch.meshgrid(torch.arange(self.height, **opts) + 0.5, torch.arange(self.width, **opts) + 0.5,
+                                  indexing="ij")
+            self._centres = torch.stack([u, v], -1)
+        return self._centres
 
     def rays_at(self, uv: torch.Tensor) -> torch.Tensor:
         """(..., 3) camera-space rays ((u−cx)/fx, (v−cy)/fy, 1) through pixel coordinates ``uv`` (..., 2)."""
@@ -66,8 +71,11 @@ class CameraTensors:
                             torch.ones_like(uv[..., 0])], dim=-1)
 
     def rays(self) -> torch.Tensor:
-        """(H, W, 3) camera-space rays through the pixel centres."""
-        return self.rays_at(self.pixel_centres())
+        """(H, W, 3) camera-space rays through the pixel centres (computed once, as
+        :meth:`pixel_centres`)."""
+        if self._rays is None:
+            self._rays = self.rays_at(self.pixel_centres())
+        return self._rays
 
 
 def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:

@@ -7,6 +7,7 @@
 #include <torch/extension.h>
 
 #include "projection.h"
+#include "roundtrip.h"
 
 #include <algorithm>
 #include <cmath>
@@ -412,4 +413,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("front_to_back", &front_to_back, "visible Gaussians sorted by depth, and their pixel boxes");
     m.def("project_forward", &project_forward, "fused EWA projection and PGSR planes (forward)");
     m.def("project_backward", &project_backward, "fused EWA projection and PGSR planes (backward)");
+    m.def("roundtrip_forward", &roundtrip_forward, "PGSR's multi-view round trip against K neighbours (forward)");
+    m.def("roundtrip_backward", &roundtrip_backward, "PGSR's multi-view round trip (backward)");
+    m.def("ncc_forward", &ncc_forward, "1 - NCC of homography-warped patches against K neighbours (forward)");
+    m.def("ncc_backward", &ncc_backward, "1 - NCC of homography-warped patches (backward)");
 }
