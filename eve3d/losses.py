@@ -93,7 +93,6 @@ class CameraStack:
 
     def __init__(self, cams: Sequence[CameraTensors]):
         opts = dict(dtype=cams[0].R.dtype, device=cams[0].R.device)
-        self.cams = list(cams)
         self.R = torch.stack([c.R for c in cams])  # (K, 3, 3)
         self.t = torch.stack([c.t for c in cams])  # (K, 3)
         self.focal = torch.tensor([[c.fx, c.fy] for c in cams], **opts)  # (K, 2)
@@ -101,7 +100,7 @@ class CameraStack:
         self.size = torch.tensor([[c.width, c.height] for c in cams], **opts)  # (K, 2)
 
     def __len__(self) -> int:
-        return len(self.cams)
+        return len(self.R)
 
     def per_camera(self, x: torch.Tensor, ndim: int) -> torch.Tensor:
         """(K, C) → (K, 1, …, 1, C), to broadcast against (K, …, C) with ``ndim`` dims."""
@@ -138,6 +137,23 @@ def relative_poses(ref: CameraTensors, nbrs: CameraStack) -> tuple[torch.Tensor,
     return R, nbrs.t - R @ ref.t
 
 
+def _fused_here(image: torch.Tensor, maps: Sequence[torch.Tensor]) -> bool:
+    """Whether the multi-view terms run in the C++ extension: CPU tensors, neighbours' maps of
+    one size (the extension stacks them), and an extension that builds here."""
+    from eve3d.render import cpu
+
+    return image.device.type == "cpu" and all(m.shape == maps[0].shape for m in maps) and cpu.available()
+
+
+def _extension_cameras(ref: CameraTensors, nbrs: CameraStack, dtype: torch.dtype
+                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, tuple[float, float, float, float]]:
+    """The cameras as the extension takes them: relative poses R (K, 3, 3) and t (K, 3), the
+    neighbours' intrinsics (K, 4) fx, fy, cx, cy, in ``dtype``, and the reference's."""
+    R, t = relative_poses(ref, nbrs)
+    intrinsics = torch.cat([nbrs.focal, nbrs.centre], 1)
+    return R.to(dtype), t.to(dtype), intrinsics.to(dtype), (ref.fx, ref.fy, ref.cx, ref.cy)
+
+
 def _sample(maps: Sequence[torch.Tensor], uv: torch.Tensor) -> torch.Tensor:
     """Bilinear lookup of K (H, W, C) ``maps`` at pixel coordinates ``uv`` (K, ..., 2), map
     k at uv[k] (pixel centres at +0.5); the border value continues outside (callers mask
@@ -163,16 +179,10 @@ def forward_backward_error(depth_ref: torch.Tensor, depth_nbrs: Sequence[torch.T
     ``fused``: compute it in one pass of the C++ extension (``csrc/roundtrip.cpp``, an
     analytic backward), which by default it does on the CPU when the neighbours' maps share a
     size and the extension builds; else with the PyTorch operations below (the reference)."""
+    if _fused_here(depth_ref, depth_nbrs) if fused is None else fused:
+        R, t, intrinsics, ref_intrinsics = _extension_cameras(ref, nbrs, depth_ref.dtype)
+        return _RoundTrip.apply(depth_ref, torch.stack(list(depth_nbrs)), R, t, intrinsics, ref_intrinsics)
     R, t = relative_poses(ref, nbrs)
-    if fused is None:
-        from eve3d.render import cpu
-
-        fused = (depth_ref.device.type == "cpu" and all(d.shape == depth_nbrs[0].shape for d in depth_nbrs)
-                 and cpu.available())
-    if fused:
-        intrinsics = torch.cat([nbrs.focal, nbrs.centre], 1).to(depth_ref.dtype)
-        return _RoundTrip.apply(depth_ref, torch.stack(list(depth_nbrs)), R.to(depth_ref.dtype),
-                                t.to(depth_ref.dtype), intrinsics, (ref.fx, ref.fy, ref.cx, ref.cy))
     p_ref = depth_to_points(depth_ref, ref)
     p_nbr = p_ref.reshape(1, -1, 3) @ R.transpose(1, 2) + t[:, None]  # (K, HW, 3)
     uv_n, z_n = nbrs.project(p_nbr)
@@ -248,18 +258,11 @@ def ncc_loss(ref_grey: torch.Tensor, nbr_greys: Sequence[torch.Tensor], ref: Cam
     centres = pixels.flip(-1).to(ref_grey.dtype) + 0.5  # (K, M, 2) as (u, v)
     n = normal[pixels[..., 0], pixels[..., 1]]
     d = distance[pixels[..., 0], pixels[..., 1]]
-    if fused is None:
-        from eve3d.render import cpu
-
-        fused = (ref_grey.device.type == "cpu" and patch <= 8 and all(g.shape == nbr_greys[0].shape for g in nbr_greys)
-                 and cpu.available())
-    if fused:
-        R, t = relative_poses(ref, nbrs)
-        dtype = ref_grey.dtype
-        intrinsics = torch.cat([nbrs.focal, nbrs.centre], 1).to(dtype)
-        greys = torch.stack([g[..., 0] for g in nbr_greys]).to(dtype)
-        return _FusedNcc.apply(ref_grey[..., 0], greys, centres, n.to(dtype), d.to(dtype), R.to(dtype), t.to(dtype),
-                               intrinsics, (ref.fx, ref.fy, ref.cx, ref.cy, patch, step))
+    if patch <= 8 and _fused_here(ref_grey, nbr_greys) if fused is None else fused:
+        R, t, intrinsics, ref_intrinsics = _extension_cameras(ref, nbrs, ref_grey.dtype)
+        greys = torch.stack([g[..., 0] for g in nbr_greys])
+        return _FusedNcc.apply(ref_grey[..., 0], greys, centres, n, d, R, t, intrinsics,
+                               (*ref_intrinsics, patch, step))
     half = (patch - 1) / 2 * step
     offs = torch.linspace(-half, half, patch, dtype=ref_grey.dtype, device=ref_grey.device)
     dv, du = torch.meshgrid(offs, offs, indexing="ij")

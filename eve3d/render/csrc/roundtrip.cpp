@@ -72,11 +72,22 @@ inline T tap(const T* map, int64_t x, int64_t y, int64_t w, int64_t h) {
     return (x < w && y < h) ? map[y * w + x] : (T)0;
 }
 
+// The bilinear value at (u, v) and, when asked, its derivatives along u and v (0 where the
+// coordinate was clamped).
+template <typename T>
+inline T sample(const T* map, T u, T v, int64_t w, int64_t h, T* du = nullptr, T* dv = nullptr) {
+    const auto b = bilinear(u, v, w, h);
+    const T v00 = tap(map, b.x0, b.y0, w, h), v10 = tap(map, b.x0 + 1, b.y0, w, h);
+    const T v01 = tap(map, b.x0, b.y0 + 1, w, h), v11 = tap(map, b.x0 + 1, b.y0 + 1, w, h);
+    if (du) *du = b.gx_mult * ((1 - b.ty) * (v10 - v00) + b.ty * (v11 - v01));
+    if (dv) *dv = b.gy_mult * ((1 - b.tx) * (v01 - v00) + b.tx * (v11 - v10));
+    return (1 - b.tx) * (1 - b.ty) * v00 + b.tx * (1 - b.ty) * v10 + (1 - b.tx) * b.ty * v01 + b.tx * b.ty * v11;
+}
+
 // Everything the forward computes for one (neighbour, pixel), kept for the backward.
 template <typename T>
 struct Trip {
     T X[3], Y[3], uvn[2], dn, rn[3], Z[3], e[2], phi;
-    Bilinear<T> b;
     bool defined;
 };
 
@@ -93,10 +104,7 @@ inline Trip<T> trip(const T* dref, const T* dnbr, const Pose<T>& P, T fx, T fy, 
     const T zn = safe_z(s.Y[2]);
     s.uvn[0] = P.fx * s.Y[0] / zn + P.cx;
     s.uvn[1] = P.fy * s.Y[1] / zn + P.cy;
-    s.b = bilinear(s.uvn[0], s.uvn[1], w, h);
-    const Bilinear<T>& b = s.b;
-    s.dn = (1 - b.tx) * (1 - b.ty) * tap(dnbr, b.x0, b.y0, w, h) + b.tx * (1 - b.ty) * tap(dnbr, b.x0 + 1, b.y0, w, h) +
-           (1 - b.tx) * b.ty * tap(dnbr, b.x0, b.y0 + 1, w, h) + b.tx * b.ty * tap(dnbr, b.x0 + 1, b.y0 + 1, w, h);
+    s.dn = sample(dnbr, s.uvn[0], s.uvn[1], w, h);
     s.rn[0] = (s.uvn[0] - P.cx) / P.fx;
     s.rn[1] = (s.uvn[1] - P.cy) / P.fy;
     s.rn[2] = 1;
@@ -165,15 +173,15 @@ void backward_impl(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, 
                 const T g_dn = gq[0] * s.rn[0] + gq[1] * s.rn[1] + gq[2] * s.rn[2];
                 T g_uvn[2] = {gq[0] * s.dn / Q.fx, gq[1] * s.dn / Q.fy};
                 // dn = bilinear(map, uvn): to the four taps, and to the lookup position
-                const Bilinear<T>& b = s.b;
+                const auto b = bilinear(s.uvn[0], s.uvn[1], w, h);
                 const T wts[4] = {(1 - b.tx) * (1 - b.ty), b.tx * (1 - b.ty), (1 - b.tx) * b.ty, b.tx * b.ty};
                 const int64_t xs[4] = {b.x0, b.x0 + 1, b.x0, b.x0 + 1}, ys[4] = {b.y0, b.y0, b.y0 + 1, b.y0 + 1};
                 for (int q = 0; q < 4; ++q)
                     if (xs[q] < w && ys[q] < h) gnbr[k * m + ys[q] * w + xs[q]] += g_dn * wts[q];
-                const T v00 = tap(map, b.x0, b.y0, w, h), v10 = tap(map, b.x0 + 1, b.y0, w, h);
-                const T v01 = tap(map, b.x0, b.y0 + 1, w, h), v11 = tap(map, b.x0 + 1, b.y0 + 1, w, h);
-                g_uvn[0] += g_dn * b.gx_mult * ((1 - b.ty) * (v10 - v00) + b.ty * (v11 - v01));
-                g_uvn[1] += g_dn * b.gy_mult * ((1 - b.tx) * (v01 - v00) + b.tx * (v11 - v10));
+                T du, dv;
+                sample(map, s.uvn[0], s.uvn[1], w, h, &du, &dv);
+                g_uvn[0] += g_dn * du;
+                g_uvn[1] += g_dn * dv;
                 // uvn = f * Y_xy / zn + c
                 T gY[3] = {0, 0, 0};
                 const bool z_ok = std::abs(s.Y[2]) > (T)Z_EPS;
@@ -196,16 +204,6 @@ void backward_impl(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, 
 
 constexpr double NCC_EPS = 1e-8;     // var + 1e-8 under the square root; var > 1e-8 to be defined
 constexpr double DIST_FLOOR = 1e-6;  // the plane distance is clamped below at this
-
-template <typename T>
-inline T sample(const T* map, T u, T v, int64_t w, int64_t h, T* du = nullptr, T* dv = nullptr) {
-    const auto b = bilinear(u, v, w, h);
-    const T v00 = tap(map, b.x0, b.y0, w, h), v10 = tap(map, b.x0 + 1, b.y0, w, h);
-    const T v01 = tap(map, b.x0, b.y0 + 1, w, h), v11 = tap(map, b.x0 + 1, b.y0 + 1, w, h);
-    if (du) *du = b.gx_mult * ((1 - b.ty) * (v10 - v00) + b.ty * (v11 - v01));
-    if (dv) *dv = b.gy_mult * ((1 - b.tx) * (v01 - v00) + b.tx * (v11 - v10));
-    return (1 - b.tx) * (1 - b.ty) * v00 + b.tx * (1 - b.ty) * v10 + (1 - b.tx) * b.ty * v01 + b.tx * b.ty * v11;
-}
 
 // One reference pixel against one neighbour: the patch, its warp and the NCC statistics.
 template <typename T>
