@@ -21,8 +21,16 @@ def _gaussian_window(size: int, sigma: float, channels: int, like: torch.Tensor)
     return (g[:, None] * g[None, :]).expand(channels, 1, size, size).contiguous()
 
 
-def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    """Mean SSIM of two (H, W, C) images in [0, 1] (3DGS's Gaussian window, zero padding)."""
+def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5, fused: bool | None = None
+         ) -> torch.Tensor:
+    """Mean SSIM of two (H, W, C) images in [0, 1] (3DGS's Gaussian window, zero padding).
+
+    ``fused``: compute it in the C++ extension (``csrc/ssim.cpp``: separable blurs and an
+    analytic backward; gradients reach ``a`` only), which by default it does on the CPU when
+    ``b`` needs no gradient (the training image) and the extension builds; else with the
+    PyTorch operations below (the reference)."""
+    if (not b.requires_grad and _fused_here(a, [])) if fused is None else fused:
+        return _FusedSsim.apply(a, b, window, sigma)
     x, y = a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]
     c = x.shape[1]
     # the five blurred maps in one grouped convolution (one call, forward and backward)
@@ -35,6 +43,24 @@ def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5)
     c1, c2 = 0.01**2, 0.03**2
     s = ((2 * mu_x * mu_y + c1) * (2 * cov + c2)) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))
     return s.mean()
+
+
+class _FusedSsim(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, a, b, window, sigma):
+        from eve3d.render import cpu
+
+        value, derivs = cpu.extension().ssim_forward(a.detach(), b.detach(), window, sigma)
+        ctx.save_for_backward(a, b, derivs)
+        ctx.window = window, sigma
+        return value
+
+    @staticmethod
+    def backward(ctx, grad):
+        from eve3d.render import cpu
+
+        a, b, derivs = ctx.saved_tensors
+        return cpu.extension().ssim_backward(a.detach(), b.detach(), derivs, *ctx.window, float(grad)), None, None, None
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:

@@ -232,7 +232,30 @@ def test_ssim_matches_a_reference_with_zero_padding():
         var_u, var_v, cov = blur(u * u) - mu_u**2, blur(v * v) - mu_v**2, blur(u * v) - mu_u * mu_v
         c1, c2 = 0.01**2, 0.03**2
         maps.append((2 * mu_u * mu_v + c1) * (2 * cov + c2) / ((mu_u**2 + mu_v**2 + c1) * (var_u + var_v + c2)))
-    assert abs(float(ssim(torch.tensor(a), torch.tensor(b))) - np.mean(maps)) < 1e-12
+    for fused in (False, True):
+        assert abs(float(ssim(torch.tensor(a), torch.tensor(b), fused=fused)) - np.mean(maps)) < 1e-12, fused
+
+
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-14), (torch.float32, 1e-6)])
+def test_fused_ssim_matches_the_pytorch_reference(dtype, tol):
+    """Values and gradients of the C++ SSIM against the grouped-convolution reference, on an
+    image whose sides are not multiples of anything and one smaller than the window."""
+    g = torch.Generator().manual_seed(3)
+    for shape in ((37, 53, 3), (6, 9, 1)):
+        a = torch.rand(shape, generator=g, dtype=dtype).requires_grad_()
+        b = torch.rand(shape, generator=g, dtype=dtype)
+        ref, fused = ssim(a, b, fused=False), ssim(a, b, fused=True)
+        assert abs(float(ref - fused)) < tol
+        grad_ref, grad_fused = (torch.autograd.grad(v, a)[0] for v in (ref, fused))
+        assert grad_ref.abs().max() > 1e-5
+        torch.testing.assert_close(grad_fused, grad_ref, rtol=1e-4, atol=tol * 1e-2)
+
+
+def test_fused_ssim_gradients_pass_gradcheck():
+    g = torch.Generator().manual_seed(4)
+    a = torch.rand(9, 12, 2, generator=g, dtype=torch.float64).requires_grad_()
+    b = torch.rand(9, 12, 2, generator=g, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda x: 3 * ssim(x, b, fused=True), (a,), eps=1e-6, atol=1e-8)
 
 
 def test_ncc_gradient_reaches_the_plane():

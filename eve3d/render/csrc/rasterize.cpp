@@ -8,6 +8,7 @@
 
 #include "projection.h"
 #include "roundtrip.h"
+#include "ssim.h"
 
 #include <algorithm>
 #include <cmath>
@@ -513,4 +514,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("roundtrip_backward", &roundtrip_backward, "PGSR's multi-view round trip (backward)");
     m.def("ncc_forward", &ncc_forward, "1 - NCC of homography-warped patches against K neighbours (forward)");
     m.def("ncc_backward", &ncc_backward, "1 - NCC of homography-warped patches (backward)");
+    m.def("ssim_forward", &ssim_forward, "mean SSIM, Gaussian window, zero padding (forward)");
+    m.def("ssim_backward", &ssim_backward, "mean SSIM (backward, first image)");
 }
