@@ -78,16 +78,40 @@ def depth_to_points(depth: torch.Tensor, cam: CameraTensors) -> torch.Tensor:
     return cam.rays() * depth[..., None]
 
 
-def depth_to_normal(depth: torch.Tensor, cam: CameraTensors, span: int = 1) -> torch.Tensor:
+def depth_to_normal(depth: torch.Tensor, cam: CameraTensors, span: int = 1, fused: bool | None = None
+                    ) -> torch.Tensor:
     """(H, W, 3) unit normals facing the camera from central differences of the
     back-projected depth over ±``span`` pixels (a wider span averages out depth noise);
-    zero on the ``span``-pixel border."""
+    zero on the ``span``-pixel border.
+
+    ``fused``: in one pass of the C++ extension (``csrc/losses.cpp``, an analytic backward
+    for the depth), which by default it is on the CPU where the extension builds; else the
+    PyTorch operations below (the reference)."""
+    if _fused_here(depth, []) if fused is None else fused:
+        return _DepthNormal.apply(depth, cam.rays(), span)
     p = depth_to_points(depth, cam)
     k = span
     dx = p[k:-k, 2 * k:] - p[k:-k, :-2 * k]
     dy = p[2 * k:, k:-k] - p[:-2 * k, k:-k]
     n = F.normalize(torch.cross(dy, dx, dim=-1), dim=-1)  # y down × x right faces −z, the camera
     return F.pad(n, (0, 0, k, k, k, k))  # (H, W, 3) in memory too: a reduction over the last axis is 20x faster
+
+
+class _DepthNormal(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, depth, rays, span):
+        from eve3d.render import cpu
+
+        ctx.save_for_backward(depth, rays)
+        ctx.span = span
+        return cpu.extension().depth_normal_forward(depth.detach(), rays, span)
+
+    @staticmethod
+    def backward(ctx, grad):
+        from eve3d.render import cpu
+
+        depth, rays = ctx.saved_tensors
+        return cpu.extension().depth_normal_backward(depth.detach(), rays, ctx.span, grad), None, None
 
 
 def edge_weight(image: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,7 @@ import torch
 from eve3d.render.projection import CameraTensors, Projected
 from eve3d.scene import Eve3dError
 
-SOURCES = [Path(__file__).parent / "csrc" / name for name in ("rasterize.cpp", "projection.cpp", "roundtrip.cpp", "ssim.cpp")]
+SOURCES = [Path(__file__).parent / "csrc" / name for name in ("rasterize.cpp", "projection.cpp", "roundtrip.cpp", "losses.cpp")]
 
 
 def cpu_tag() -> str:

@@ -8,7 +8,7 @@
 
 #include "projection.h"
 #include "roundtrip.h"
-#include "ssim.h"
+#include "losses.h"
 
 #include <algorithm>
 #include <cmath>
@@ -516,4 +516,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("ncc_backward", &ncc_backward, "1 - NCC of homography-warped patches (backward)");
     m.def("ssim_forward", &ssim_forward, "mean SSIM, Gaussian window, zero padding (forward)");
     m.def("ssim_backward", &ssim_backward, "mean SSIM (backward, first image)");
+    m.def("depth_normal_forward", &depth_normal_forward, "normals of a depth map (forward)");
+    m.def("depth_normal_backward", &depth_normal_backward, "normals of a depth map (backward)");
 }
