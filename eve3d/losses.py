@@ -21,8 +21,16 @@ def _gaussian_window(size: int, sigma: float, channels: int, like: torch.Tensor)
     return (g[:, None] * g[None, :]).expand(channels, 1, size, size).contiguous()
 
 
-def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    """Mean SSIM of two (H, W, C) images in [0, 1] (3DGS's Gaussian window, zero padding)."""
+def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5, fused: bool | None = None
+         ) -> torch.Tensor:
+    """Mean SSIM of two (H, W, C) images in [0, 1] (3DGS's Gaussian window, zero padding).
+
+    ``fused``: compute it in the C++ extension (``csrc/ssim.cpp``: separable blurs and an
+    analytic backward; gradients reach ``a`` only), which by default it does on the CPU when
+    ``b`` needs no gradient (the training image) and the extension builds; else with the
+    PyTorch operations below (the reference)."""
+    if (not b.requires_grad and _fused_here(a, [])) if fused is None else fused:
+        return _FusedSsim.apply(a, b, window, sigma)
     x, y = a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]
     c = x.shape[1]
     # the five blurred maps in one grouped convolution (one call, forward and backward)
@@ -35,6 +43,24 @@ def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5)
     c1, c2 = 0.01**2, 0.03**2
     s = ((2 * mu_x * mu_y + c1) * (2 * cov + c2)) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))
     return s.mean()
+
+
+class _FusedSsim(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, a, b, window, sigma):
+        from eve3d.render import cpu
+
+        value, derivs = cpu.extension().ssim_forward(a.detach(), b.detach(), window, sigma)
+        ctx.save_for_backward(a, b, derivs)
+        ctx.window = window, sigma
+        return value
+
+    @staticmethod
+    def backward(ctx, grad):
+        from eve3d.render import cpu
+
+        a, b, derivs = ctx.saved_tensors
+        return cpu.extension().ssim_backward(a.detach(), b.detach(), derivs, *ctx.window, float(grad)), None, None, None
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -52,16 +78,40 @@ def depth_to_points(depth: torch.Tensor, cam: CameraTensors) -> torch.Tensor:
     return cam.rays() * depth[..., None]
 
 
-def depth_to_normal(depth: torch.Tensor, cam: CameraTensors, span: int = 1) -> torch.Tensor:
+def depth_to_normal(depth: torch.Tensor, cam: CameraTensors, span: int = 1, fused: bool | None = None
+                    ) -> torch.Tensor:
     """(H, W, 3) unit normals facing the camera from central differences of the
     back-projected depth over ±``span`` pixels (a wider span averages out depth noise);
-    zero on the ``span``-pixel border."""
+    zero on the ``span``-pixel border.
+
+    ``fused``: in one pass of the C++ extension (``csrc/losses.cpp``, an analytic backward
+    for the depth), which by default it is on the CPU where the extension builds; else the
+    PyTorch operations below (the reference)."""
+    if _fused_here(depth, []) if fused is None else fused:
+        return _DepthNormal.apply(depth, cam.rays(), span)
     p = depth_to_points(depth, cam)
     k = span
     dx = p[k:-k, 2 * k:] - p[k:-k, :-2 * k]
     dy = p[2 * k:, k:-k] - p[:-2 * k, k:-k]
     n = F.normalize(torch.cross(dy, dx, dim=-1), dim=-1)  # y down × x right faces −z, the camera
-    return F.pad(n.permute(2, 0, 1), (k, k, k, k)).permute(1, 2, 0)
+    return F.pad(n, (0, 0, k, k, k, k))  # (H, W, 3) in memory too: a reduction over the last axis is 20x faster
+
+
+class _DepthNormal(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, depth, rays, span):
+        from eve3d.render import cpu
+
+        ctx.save_for_backward(depth, rays)
+        ctx.span = span
+        return cpu.extension().depth_normal_forward(depth.detach(), rays, span)
+
+    @staticmethod
+    def backward(ctx, grad):
+        from eve3d.render import cpu
+
+        depth, rays = ctx.saved_tensors
+        return cpu.extension().depth_normal_backward(depth.detach(), rays, ctx.span, grad), None, None
 
 
 def edge_weight(image: torch.Tensor) -> torch.Tensor:

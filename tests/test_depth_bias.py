@@ -112,7 +112,8 @@ def plane_dataset(tmp_path_factory):
 
 
 def train_plane(dataset, out, **overrides):
-    """``pgsr`` at the ``cpu`` preset, briefly (300 steps, its schedule scaled down); returns
+    """``pgsr`` at the ``cpu`` preset, briefly (300 steps, its schedule scaled down) and at
+    half the images' size (the preset's size when the bounds below were measured); returns
     the accuracy of its rendered depth against the exact depth."""
     from eve3d.config import job_config, stage_settings
     from eve3d.io import load_scene
@@ -121,7 +122,7 @@ def train_plane(dataset, out, **overrides):
     from eve3d.methods import methods
 
     brief = ["joint.iterations=300", "joint.dn_from=100", "joint.mv_from=100", "joint.checkpoint_every=0",
-             "joint.densify.refine_stop=250", "joint.previews=0"]
+             "joint.densify.refine_stop=250", "joint.previews=0", "train.resolution=0.5"]
     config = job_config(None, brief + [f"train.{k}={v}" for k, v in overrides.items()])
     settings = stage_settings(JointSettings, "joint", config, overrides=methods()["pgsr"].settings, method="pgsr")
     scene = load_scene(dataset)
@@ -137,14 +138,21 @@ def train_plane(dataset, out, **overrides):
 @pytest.mark.slow
 def test_pgsr_on_a_plane_has_no_depth_bias(plane_dataset, tmp_path):
     """The issue's bound: a textured plane 2 units away, trained briefly with ``pgsr`` at the
-    ``cpu`` preset: the rendered depth's median signed error within 0.1 % (measured +0.02 %).
-    Started from 3DGS's isotropic balls instead of discs (``init_thickness: 1``), the same
-    run renders the plane 0.5 % too near: the cause this guards against."""
+    ``cpu`` preset: the rendered depth's median signed error within 0.1 % (measured +0.02 to
+    +0.06 % over seeds 0–3). Started from 3DGS's isotropic balls instead of discs
+    (``init_thickness: 1``), the same run renders the plane 0.3 % too near or more, on average
+    over seeds 0–3: the cause this guards against. One seed alone is not a measurement of it:
+    the balls' error moves with the split draws and with float rounding (seeds 0–3: −0.32,
+    −0.32, −0.30, −0.37 % before issue 21's vectorised compositing and C++ SSIM; −0.25, −0.52,
+    −0.25, −0.48 % after; the mean −0.33 and −0.38 %). At 3/4 of the images' size (the
+    ``cpu`` preset since issue 21) the balls drew −0.35, −0.37, −0.18, −0.29 %, the discs
+    stayed within 0.1 %."""
     acc = train_plane(plane_dataset, tmp_path / "discs")
     assert acc["density"] > 0.9
     assert abs(acc["median_signed_error"]) < 0.001
-    balls = train_plane(plane_dataset, tmp_path / "balls", init_thickness=1.0)
-    assert balls["median_signed_error"] < -0.003
+    balls = [train_plane(plane_dataset, tmp_path / f"balls{seed}", init_thickness=1.0, seed=seed)["median_signed_error"]
+             for seed in range(4)]
+    assert np.mean(balls) < -0.003, balls
 
 
 def test_initial_gaussians_on_a_surface_are_discs_in_its_plane():

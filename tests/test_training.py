@@ -232,7 +232,60 @@ def test_ssim_matches_a_reference_with_zero_padding():
         var_u, var_v, cov = blur(u * u) - mu_u**2, blur(v * v) - mu_v**2, blur(u * v) - mu_u * mu_v
         c1, c2 = 0.01**2, 0.03**2
         maps.append((2 * mu_u * mu_v + c1) * (2 * cov + c2) / ((mu_u**2 + mu_v**2 + c1) * (var_u + var_v + c2)))
-    assert abs(float(ssim(torch.tensor(a), torch.tensor(b))) - np.mean(maps)) < 1e-12
+    for fused in (False, True):
+        assert abs(float(ssim(torch.tensor(a), torch.tensor(b), fused=fused)) - np.mean(maps)) < 1e-12, fused
+
+
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-14), (torch.float32, 1e-6)])
+def test_fused_ssim_matches_the_pytorch_reference(dtype, tol):
+    """Values and gradients of the C++ SSIM against the grouped-convolution reference, on an
+    image whose sides are not multiples of anything and one smaller than the window."""
+    g = torch.Generator().manual_seed(3)
+    for shape in ((37, 53, 3), (6, 9, 1)):
+        a = torch.rand(shape, generator=g, dtype=dtype).requires_grad_()
+        b = torch.rand(shape, generator=g, dtype=dtype)
+        ref, fused = ssim(a, b, fused=False), ssim(a, b, fused=True)
+        assert abs(float(ref - fused)) < tol
+        grad_ref, grad_fused = (torch.autograd.grad(v, a)[0] for v in (ref, fused))
+        assert grad_ref.abs().max() > 1e-5
+        torch.testing.assert_close(grad_fused, grad_ref, rtol=1e-4, atol=tol * 1e-2)
+
+
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-12), (torch.float32, 1e-5)])
+def test_fused_depth_to_normal_matches_the_pytorch_reference(dtype, tol):
+    """Normals and depth gradients of the C++ depth_to_normal against the reference, on a
+    rough depth with a hole, for spans 1 to 3."""
+    c = _plane_views()[0][0][0]
+    cam = CameraTensors(c.R.to(dtype), c.t.to(dtype), c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+    g = torch.Generator().manual_seed(5)
+    depth = (2 + torch.rand(48, 64, generator=g, dtype=dtype))
+    depth[10:14, 20:23] = 0
+    weights = torch.randn(48, 64, 3, generator=g, dtype=dtype)
+    for span in (1, 2, 3):
+        d = depth.clone().requires_grad_()
+        ref, fused = (depth_to_normal(d, cam, span, fused=f) for f in (False, True))
+        assert fused.dtype == dtype and fused.is_contiguous()
+        torch.testing.assert_close(fused, ref, rtol=0, atol=tol)
+        grad_ref, grad_fused = (torch.autograd.grad((n * weights).sum(), d)[0] for n in (ref, fused))
+        assert grad_ref.abs().max() > 1
+        torch.testing.assert_close(grad_fused, grad_ref, rtol=tol, atol=tol * grad_ref.abs().max().item())
+
+
+def test_fused_depth_to_normal_gradients_pass_gradcheck():
+    cam = _plane_views()[0][0][0]
+    g = torch.Generator().manual_seed(6)
+    depth = (2 + torch.rand(48, 64, generator=g, dtype=torch.float64))[20:29, 30:41].contiguous()
+    small = CameraTensors(cam.R, cam.t, cam.fx, cam.fy, cam.cx - 30, cam.cy - 20, 11, 9)
+    for span in (1, 2):
+        assert torch.autograd.gradcheck(lambda d: depth_to_normal(d, small, span, fused=True),
+                                        (depth.requires_grad_(),))
+
+
+def test_fused_ssim_gradients_pass_gradcheck():
+    g = torch.Generator().manual_seed(4)
+    a = torch.rand(9, 12, 2, generator=g, dtype=torch.float64).requires_grad_()
+    b = torch.rand(9, 12, 2, generator=g, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda x: 3 * ssim(x, b, fused=True), (a,), eps=1e-6, atol=1e-8)
 
 
 def test_ncc_gradient_reaches_the_plane():

@@ -22,7 +22,7 @@ import torch
 from eve3d.render.projection import CameraTensors, Projected
 from eve3d.scene import Eve3dError
 
-SOURCES = [Path(__file__).parent / "csrc" / name for name in ("rasterize.cpp", "projection.cpp", "roundtrip.cpp")]
+SOURCES = [Path(__file__).parent / "csrc" / name for name in ("rasterize.cpp", "projection.cpp", "roundtrip.cpp", "losses.cpp")]
 
 
 def cpu_tag() -> str:
@@ -51,7 +51,7 @@ def extension():
     print("eve3d: loading the C++ rasteriser (compiled once, about 40 s, then cached)", file=sys.stderr)
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") else []
     return load(name=f"eve3d_rasterize_{cpu_tag()}", sources=[str(p) for p in SOURCES],
-                extra_cflags=["-O3", *native, "-fopenmp"], extra_ldflags=["-fopenmp"], verbose=False)
+                extra_cflags=["-O3", *native, "-fno-trapping-math", "-fopenmp"], extra_ldflags=["-fopenmp"], verbose=False)
 
 
 @functools.lru_cache(maxsize=1)

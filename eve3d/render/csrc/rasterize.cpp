@@ -8,6 +8,7 @@
 
 #include "projection.h"
 #include "roundtrip.h"
+#include "losses.h"
 
 #include <algorithm>
 #include <cmath>
@@ -21,6 +22,8 @@
 namespace {
 
 constexpr int64_t TILE = 16;
+constexpr int32_t LANES = TILE;
+constexpr int64_t AHEAD = 8;  // entries ahead whose scattered per-Gaussian data is prefetched  // a row of a tile: the pixels the vectorised loops take at once
 constexpr double ALPHA_MIN = 1.0 / 255.0;
 constexpr double ALPHA_MAX = 0.999;
 constexpr double T_MIN = 1e-4;
@@ -69,14 +72,44 @@ std::vector<torch::Tensor> bin_tiles(const torch::Tensor& boxes, const torch::Te
     return {offsets, ids};
 }
 
+// exp(x) in a form the compiler vectorises across a row of pixels (glibc's vector exp needs
+// -ffast-math, which would also drop the NaN tests below): x = n ln2 + r with |r| <= ln2 / 2,
+// exp(r) by its Taylor polynomial (degree 7 in float, 13 in double: truncation below half an
+// ulp), times 2^n built in the exponent bits. Within a few ulp of std::exp; arguments
+// outside [-80, 80] (and NaN) are clamped, as only masked-out pixels reach them.
 template <typename scalar_t>
-struct Splat {
-    scalar_t alpha, raw, dx, dy;
-    bool skip;
+struct ExpBits;
+template <>
+struct ExpBits<float> {
+    using int_t = int32_t;
+    static constexpr int degree = 7, mantissa = 23, bias = 127;
+};
+template <>
+struct ExpBits<double> {
+    using int_t = int64_t;
+    static constexpr int degree = 13, mantissa = 52, bias = 1023;
 };
 
+template <typename scalar_t>
+inline scalar_t vexp(scalar_t x) {
+    using B = ExpBits<scalar_t>;
+    x = x >= (scalar_t)-80 ? x : (scalar_t)-80;  // also NaN
+    x = x <= (scalar_t)80 ? x : (scalar_t)80;
+    // round to nearest by adding and removing 1.5 * 2^mantissa (std::floor would not vectorise)
+    constexpr scalar_t shifter = (scalar_t)1.5 * (scalar_t)(1LL << B::mantissa);
+    const scalar_t n = (x * (scalar_t)1.4426950408889634 + shifter) - shifter;
+    const scalar_t r = (x - n * (scalar_t)0.693145751953125) - n * (scalar_t)1.428606820309417e-06;
+    scalar_t p = 1;
+#pragma GCC unroll 16
+    for (int k = B::degree; k >= 1; --k) p = (scalar_t)1 + r * p * (scalar_t)(1.0 / k);
+    const typename B::int_t bits = ((typename B::int_t)n + B::bias) << B::mantissa;
+    scalar_t scale;
+    std::memcpy(&scale, &bits, sizeof(scale));
+    return p * scale;
+}
+
 // sigma beyond which alpha is surely below 1/255 (with a margin, so the exact test decides
-// near the threshold): skips most of exp() for the tile's Gaussians a pixel does not see.
+// near the threshold).
 template <typename scalar_t>
 std::vector<scalar_t> sigma_cutoffs(const scalar_t* o, int64_t n) {
     std::vector<scalar_t> cut(n);
@@ -84,200 +117,264 @@ std::vector<scalar_t> sigma_cutoffs(const scalar_t* o, int64_t n) {
     return cut;
 }
 
+// One tile's list entry: the Gaussian's 2D parameters, and the rows of the tile its
+// conservative footprint reaches: the ellipse sigma <= K, K exceeding the cutoff by a margin
+// (1% + 0.01), bounded in double. Rows outside it have sigma beyond the cutoff at every pixel,
+// so the per-pixel test would reject them anyway; a conic that is not positive definite
+// reaches every row.
 template <typename scalar_t>
-inline Splat<scalar_t> splat(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* cut,
-                             int64_t g, int64_t px, int64_t py) {
-    Splat<scalar_t> s;
-    s.dx = (scalar_t)px + (scalar_t)0.5 - m[2 * g];
-    s.dy = (scalar_t)py + (scalar_t)0.5 - m[2 * g + 1];
-    const scalar_t sigma =
-        (scalar_t)0.5 * (c[3 * g] * s.dx * s.dx + c[3 * g + 2] * s.dy * s.dy) + c[3 * g + 1] * s.dx * s.dy;
-    if (sigma < 0 || sigma > cut[g]) {
-        s.skip = true;
-        return s;
-    }
-    s.raw = o[g] * std::exp(-sigma);
-    s.alpha = std::min(s.raw, (scalar_t)ALPHA_MAX);
-    s.skip = s.alpha < (scalar_t)ALPHA_MIN;
-    return s;
-}
-
-// One tile's list entry with the conservative footprint used to skip pixels: the ellipse
-// sigma <= K, where K exceeds the cutoff by a margin (1% + 0.01), in double. Every pixel
-// whose centre lies outside it has sigma beyond the cutoff, so the exact
-// per-pixel test would skip it anyway; inside, the per-pixel test decides as before.
 struct Entry {
-    double mx, my, a, b, c, K;
-    int64_t ylo, yhi;  // rows of the tile that may see it (inclusive; empty when ylo > yhi)
-    bool full;         // conic not positive definite: test every pixel
+    scalar_t mx, my, a, b, c, o, cut;
+    int64_t g, ylo, yhi;  // ylo > yhi: no row
 };
 
 template <typename scalar_t>
-void tile_entries(const scalar_t* m, const scalar_t* c, const scalar_t* cut, const int64_t* ids, int64_t begin,
-                  int64_t end, int64_t y0, int64_t y1, std::vector<Entry>& out) {
+void tile_entries(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* cut, const int64_t* ids,
+                  int64_t begin, int64_t end, int64_t y0, int64_t y1, std::vector<Entry<scalar_t>>& out) {
     out.resize(end - begin);
     for (int64_t k = begin; k < end; ++k) {
         const int64_t g = ids[k];
-        Entry& e = out[k - begin];
-        e.mx = m[2 * g];
-        e.my = m[2 * g + 1];
-        e.a = c[3 * g];
-        e.b = c[3 * g + 1];
-        e.c = c[3 * g + 2];
-        e.K = std::max((double)cut[g], 0.0) * 1.01 + 0.01;
-        const double det = e.a * e.c - e.b * e.b;
-        e.full = !(e.a > 0 && det > 0 && std::isfinite(det) && std::isfinite(e.mx) && std::isfinite(e.my));
-        if (e.full) {
-            e.ylo = y0;
-            e.yhi = y1 - 1;
-            continue;
+        if (k + AHEAD < end) {
+            const int64_t ga = ids[k + AHEAD];
+            __builtin_prefetch(m + 2 * ga);
+            __builtin_prefetch(c + 3 * ga);
+            __builtin_prefetch(o + ga);
+            __builtin_prefetch(cut + ga);
         }
-        const double ext = std::sqrt(2 * e.K * e.a / det);
-        e.ylo = std::max(y0, (int64_t)std::ceil(e.my - ext - 0.5 - 1e-3));
-        e.yhi = std::min(y1 - 1, (int64_t)std::floor(e.my + ext - 0.5 + 1e-3));
+        auto& e = out[k - begin];
+        e = {m[2 * g], m[2 * g + 1], c[3 * g], c[3 * g + 1], c[3 * g + 2], o[g], cut[g], g, y0, y1 - 1};
+        const double a = e.a, b = e.b, cc = e.c, my = e.my, det = a * cc - b * b;
+        if (!(a > 0 && det > 0 && std::isfinite(det) && std::isfinite((double)e.mx) && std::isfinite(my))) continue;
+        const double K = std::max((double)e.cut, 0.0) * 1.01 + 0.01;
+        const double ext = std::sqrt(2 * K * a / det);
+        e.ylo = std::max(y0, (int64_t)std::ceil(my - ext - 0.5 - 1e-3));
+        e.yhi = std::min(y1 - 1, (int64_t)std::floor(my + ext - 0.5 + 1e-3));
     }
 }
 
-// Columns [x_lo, x_hi] of row py that may see entry e, clipped to [x0, x1); false if none.
-inline bool row_span(const Entry& e, int64_t py, int64_t x0, int64_t x1, int64_t& x_lo, int64_t& x_hi) {
-    if (py < e.ylo || py > e.yhi) return false;
-    if (e.full) {
-        x_lo = x0;
-        x_hi = x1 - 1;
-        return true;
+// One Gaussian against the TILE pixels of a row (x0 + i, py): sigma, exp(-sigma), alpha and
+// whether the Gaussian may count there (inside the image, sigma in [0, cutoff], alpha at least
+// 1/255), computed for all lanes at once.
+template <typename scalar_t>
+struct RowSplat {
+    scalar_t dx[TILE], ex[TILE], alpha[TILE];
+    int32_t ok[TILE];
+};
+
+template <typename scalar_t>
+inline void row_splat(const Entry<scalar_t>& e, int64_t x0, int64_t tw, int64_t py, RowSplat<scalar_t>& s) {
+    // locals, so that the compiler need not fear the stores below alias the entry
+    const scalar_t mx = e.mx, a = e.a, b = e.b, c = e.c, o = e.o, cut = e.cut;
+    const int32_t n = (int32_t)tw;
+    const scalar_t dy = (scalar_t)py + (scalar_t)0.5 - e.my;
+    scalar_t *sdx = s.dx, *sex = s.ex, *salpha = s.alpha;
+    int32_t* sok = s.ok;
+#pragma omp simd
+    for (int32_t i = 0; i < LANES; ++i) {
+        const scalar_t dx = ((scalar_t)x0 + (scalar_t)i) + (scalar_t)0.5 - mx;
+        const scalar_t sigma = (scalar_t)0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
+        const scalar_t ex = vexp(-sigma);
+        const scalar_t raw = o * ex;
+        const scalar_t alpha = std::min(raw, (scalar_t)ALPHA_MAX);
+        sdx[i] = dx;
+        sex[i] = ex;
+        salpha[i] = alpha;
+        sok[i] = i < n && sigma >= 0 && sigma <= cut && alpha >= (scalar_t)ALPHA_MIN ? 1 : 0;
     }
-    const double dy = py + 0.5 - e.my;
-    const double disc = e.b * e.b * dy * dy - e.a * (e.c * dy * dy - 2 * e.K);
-    if (!(disc >= 0)) return false;
-    const double sq = std::sqrt(disc);
-    x_lo = std::max(x0, (int64_t)std::ceil(e.mx + (-e.b * dy - sq) / e.a - 0.5 - 1e-3));
-    x_hi = std::min(x1 - 1, (int64_t)std::floor(e.mx + (-e.b * dy + sq) / e.a - 0.5 + 1e-3));
-    return x_lo <= x_hi;
 }
 
-// Each pixel still takes its tile's list in order with the same arithmetic as a plain
-// per-pixel loop; a row of the tile walks the list together, so that an entry's footprint
-// is computed once per row and only the pixels it may cover are tested.
+// Tiles in parallel; within a tile the list is walked once, in order, and each entry is
+// composited into the rows it reaches, TILE pixels at a time (vectorised). Each pixel sees the
+// same entries in the same order with the same arithmetic as a per-pixel loop, and keeps its
+// own transmittance, stop flag and count of entries consumed.
 template <typename scalar_t>
 int64_t forward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
                      int64_t V, const int64_t* off, const int64_t* ids, int64_t tiles, int64_t width, int64_t height,
                      scalar_t* img, scalar_t* tf, int32_t* used) {
+    constexpr int64_t P = TILE * TILE;
     const int64_t tiles_x = (width + TILE - 1) / TILE;
     const auto cut = sigma_cutoffs(o, V);
     int64_t n_pairs = 0;
 #pragma omp parallel reduction(+ : n_pairs)
     {
-        std::vector<Entry> entries;
+        std::vector<Entry<scalar_t>> entries;
+        std::vector<scalar_t> acc(C * P);
+        RowSplat<scalar_t> s;
 #pragma omp for schedule(dynamic)
         for (int64_t t = 0; t < tiles; ++t) {
             const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
-            const int64_t x1 = std::min(x0 + TILE, width), y1 = std::min(y0 + TILE, height);
-            tile_entries(m, c, cut.data(), ids, off[t], off[t + 1], y0, y1, entries);
-            const int64_t n = off[t + 1] - off[t];
-            for (int64_t py = y0; py < y1; ++py) {
-                scalar_t T[TILE];
-                int32_t last[TILE];
-                bool done[TILE];
-                for (int64_t i = 0; i < TILE; ++i) T[i] = 1, last[i] = 0, done[i] = false;
-                int64_t live = x1 - x0;
-                for (int64_t j = 0; j < n && live > 0; ++j) {
-                    int64_t xa, xb;
-                    if (!row_span(entries[j], py, x0, x1, xa, xb)) continue;
-                    const int64_t g = ids[off[t] + j];
-                    for (int64_t px = xa; px <= xb; ++px) {
-                        const int64_t i = px - x0;
-                        if (done[i]) continue;
-                        const auto s = splat(m, c, o, cut.data(), g, px, py);
-                        if (s.skip) continue;
-                        const scalar_t next_t = T[i] * (1 - s.alpha);
-                        if (next_t <= (scalar_t)T_MIN) {
-                            done[i] = true;
-                            --live;
-                            continue;
-                        }
-                        const scalar_t w = s.alpha * T[i];
-                        const int64_t p = py * width + px;
-                        for (int64_t ch = 0; ch < C; ++ch) img[p * C + ch] += w * f[g * C + ch];
-                        T[i] = next_t;
-                        last[i] = (int32_t)(j + 1);
-                        ++n_pairs;
+            const int64_t tw = std::min(TILE, width - x0), th = std::min(TILE, height - y0);
+            tile_entries(m, c, o, cut.data(), ids, off[t], off[t + 1], y0, y0 + th, entries);
+            scalar_t T[P];
+            int32_t last[P], done[P];
+            int64_t row_live[TILE];
+            for (int64_t i = 0; i < P; ++i) T[i] = 1, last[i] = 0, done[i] = 0;
+            for (int64_t r = 0; r < TILE; ++r) row_live[r] = r < th ? tw : 0;
+            std::fill(acc.begin(), acc.end(), (scalar_t)0);
+            int64_t live = tw * th;
+            for (int64_t j = 0; j < (int64_t)entries.size() && live > 0; ++j) {
+                const auto& e = entries[j];
+                const scalar_t* fg = f + e.g * C;
+                if (j + AHEAD < (int64_t)entries.size()) __builtin_prefetch(f + entries[j + AHEAD].g * C);
+                for (int64_t py = e.ylo; py <= e.yhi; ++py) {
+                    const int64_t r = py - y0;
+                    if (!row_live[r]) continue;
+                    row_splat(e, x0, tw, py, s);
+                    scalar_t* Tr = T + r * TILE;
+                    int32_t *dr = done + r * TILE, *lr = last + r * TILE;
+                    scalar_t w[TILE];
+                    const int32_t jj = (int32_t)(j + 1);
+                    int32_t ended = 0, added = 0;
+#pragma omp simd reduction(+ : ended, added)
+                    for (int32_t i = 0; i < LANES; ++i) {
+                        const int32_t ok = s.ok[i] & (1 - dr[i]);
+                        const scalar_t next_t = Tr[i] * (1 - s.alpha[i]);
+                        const int32_t end = ok & (next_t <= (scalar_t)T_MIN ? 1 : 0);
+                        const int32_t use = ok & (1 - end);
+                        w[i] = use ? s.alpha[i] * Tr[i] : (scalar_t)0;
+                        Tr[i] = use ? next_t : Tr[i];
+                        lr[i] = use ? jj : lr[i];
+                        dr[i] |= end;
+                        ended += end;
+                        added += use;
                     }
-                }
-                for (int64_t px = x0; px < x1; ++px) {
-                    tf[py * width + px] = T[px - x0];
-                    used[py * width + px] = last[px - x0];
+                    if (added)
+                        for (int64_t ch = 0; ch < C; ++ch) {
+                            scalar_t* a = acc.data() + ch * P + r * TILE;
+#pragma omp simd
+                            for (int32_t i = 0; i < LANES; ++i) a[i] += w[i] * fg[ch];
+                        }
+                    row_live[r] -= ended;
+                    live -= ended;
+                    n_pairs += added;
                 }
             }
+            for (int64_t r = 0; r < th; ++r)
+                for (int64_t i = 0; i < tw; ++i) {
+                    const int64_t p = (y0 + r) * width + x0 + i, q = r * TILE + i;
+                    for (int64_t ch = 0; ch < C; ++ch) img[p * C + ch] = acc[ch * P + q];
+                    tf[p] = T[q];
+                    used[p] = last[q];
+                }
         }
     }
     return n_pairs;
 }
 
+// The list walked back to front, tile by tile; each pixel recovers the transmittance in front
+// of an entry by division (as gsplat does) and the entry's gradient is summed over the tile's
+// pixels in lanes, then added once into this thread's buffer.
 template <typename scalar_t>
 void backward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
                    int64_t V, const int64_t* off, const int64_t* gids, int64_t tiles, int64_t width,
                    int64_t height, const scalar_t* tf, const int32_t* used, const scalar_t* gi,
                    const scalar_t* ga, scalar_t* all) {
+    constexpr int64_t P = TILE * TILE;
     const int64_t K = 8 + C;  // per Gaussian: mean2d (2), conic (3), opacity, features (C), |mean2d| (2)
     const int64_t tiles_x = (width + TILE - 1) / TILE;
     const auto cut = sigma_cutoffs(o, V);
 #pragma omp parallel
     {
-        std::vector<Entry> entries;
-        std::vector<scalar_t> acc(K);
+        std::vector<Entry<scalar_t>> entries;
+        std::vector<scalar_t> grad(C * P), lanes(K * TILE);
+        RowSplat<scalar_t> s;
         scalar_t* buf = all + (int64_t)thread_id() * V * K;
 #pragma omp for schedule(dynamic)
         for (int64_t t = 0; t < tiles; ++t) {
             const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
-            const int64_t x1 = std::min(x0 + TILE, width), y1 = std::min(y0 + TILE, height);
-            tile_entries(m, c, cut.data(), gids, off[t], off[t + 1], y0, y1, entries);
-            for (int64_t py = y0; py < y1; ++py) {
-                scalar_t T[TILE], behind[TILE];
-                int64_t kmax = 0;
-                for (int64_t px = x0; px < x1; ++px) {
-                    T[px - x0] = tf[py * width + px];
-                    behind[px - x0] = 0;
-                    kmax = std::max(kmax, (int64_t)used[py * width + px]);
+            const int64_t tw = std::min(TILE, width - x0), th = std::min(TILE, height - y0);
+            tile_entries(m, c, o, cut.data(), gids, off[t], off[t + 1], y0, y0 + th, entries);
+            scalar_t T[P], behind[P], g_alpha[P];
+            int32_t count[P];
+            int64_t row_max[TILE], kmax = 0;
+            std::fill(grad.begin(), grad.end(), (scalar_t)0);
+            for (int64_t r = 0; r < TILE; ++r) {
+                row_max[r] = 0;
+                for (int64_t i = 0; i < TILE; ++i) {
+                    const int64_t q = r * TILE + i, p = (y0 + r) * width + x0 + i;
+                    const bool in = r < th && i < tw;
+                    T[q] = in ? tf[p] : 1;
+                    behind[q] = 0;
+                    count[q] = in ? used[p] : 0;
+                    g_alpha[q] = in ? ga[p] : 0;
+                    for (int64_t ch = 0; ch < C; ++ch) grad[ch * P + q] = in ? gi[p * C + ch] : 0;
+                    row_max[r] = std::max(row_max[r], (int64_t)count[q]);
                 }
-                for (int64_t j = kmax - 1; j >= 0; --j) {
-                    int64_t xa, xb;
-                    if (!row_span(entries[j], py, x0, x1, xa, xb)) continue;
-                    const int64_t g = gids[off[t] + j];
-                    bool any = false;
-                    for (int64_t px = xa; px <= xb; ++px) {
-                        const int64_t p = py * width + px;
-                        if (j >= used[p]) continue;
-                        const auto s = splat(m, c, o, cut.data(), g, px, py);
-                        if (s.skip) continue;
-                        const int64_t i = px - x0;
-                        const scalar_t* G = gi + p * C;
-                        T[i] /= 1 - s.alpha;  // transmittance in front of g
-                        const scalar_t w = s.alpha * T[i];
-                        scalar_t dl_dw = ga[p];
-                        for (int64_t ch = 0; ch < C; ++ch) dl_dw += G[ch] * f[g * C + ch];
-                        scalar_t dl_dalpha = T[i] * dl_dw - behind[i] / (1 - s.alpha);
-                        behind[i] += w * dl_dw;
-                        if (s.raw > (scalar_t)ALPHA_MAX) dl_dalpha = 0;  // clamped: flat
-                        const scalar_t dl_dsigma = -dl_dalpha * s.raw;
-                        const scalar_t dmx = -dl_dsigma * (c[3 * g] * s.dx + c[3 * g + 1] * s.dy);
-                        const scalar_t dmy = -dl_dsigma * (c[3 * g + 1] * s.dx + c[3 * g + 2] * s.dy);
-                        if (!any) {
-                            std::fill(acc.begin(), acc.end(), (scalar_t)0);
-                            any = true;
-                        }
-                        acc[0] += dmx;
-                        acc[1] += dmy;
-                        acc[2] += (scalar_t)0.5 * dl_dsigma * s.dx * s.dx;
-                        acc[3] += dl_dsigma * s.dx * s.dy;
-                        acc[4] += (scalar_t)0.5 * dl_dsigma * s.dy * s.dy;
-                        acc[5] += dl_dalpha * s.raw / o[g];
-                        for (int64_t ch = 0; ch < C; ++ch) acc[6 + ch] += w * G[ch];
-                        acc[6 + C] += std::abs(dmx);
-                        acc[7 + C] += std::abs(dmy);
+                kmax = std::max(kmax, row_max[r]);
+            }
+            for (int64_t j = kmax - 1; j >= 0; --j) {
+                const auto& e = entries[j];
+                const scalar_t* fg = f + e.g * C;
+                if (j >= AHEAD) {  // Gaussians come in depth order, scattered in memory
+                    const int64_t g = entries[j - AHEAD].g;
+                    __builtin_prefetch(f + g * C);
+                    __builtin_prefetch(buf + g * K, 1);
+                    __builtin_prefetch(buf + g * K + K - 1, 1);
+                }
+                bool any = false;
+                for (int64_t py = e.ylo; py <= e.yhi; ++py) {
+                    const int64_t r = py - y0;
+                    if (j >= row_max[r]) continue;
+                    row_splat(e, x0, tw, py, s);
+                    scalar_t *Tr = T + r * TILE, *br = behind + r * TILE;
+                    const int32_t* cr = count + r * TILE;
+                    scalar_t w[TILE], dl_dw[TILE];
+                    int32_t ok[TILE];
+                    const int32_t jj = (int32_t)j;
+                    int32_t n_ok = 0;
+#pragma omp simd reduction(+ : n_ok)
+                    for (int32_t i = 0; i < LANES; ++i) {
+                        ok[i] = s.ok[i] & (jj < cr[i] ? 1 : 0);
+                        Tr[i] = ok[i] ? Tr[i] / (1 - s.alpha[i]) : Tr[i];  // transmittance in front of g
+                        w[i] = ok[i] ? s.alpha[i] * Tr[i] : (scalar_t)0;
+                        dl_dw[i] = g_alpha[r * TILE + i];
+                        n_ok += ok[i];
                     }
-                    if (any) {
-                        scalar_t* b = buf + g * K;
-                        for (int64_t q = 0; q < K; ++q) b[q] += acc[q];
+                    if (!n_ok) continue;
+                    if (!any) {
+                        std::fill(lanes.begin(), lanes.end(), (scalar_t)0);
+                        any = true;
+                    }
+                    for (int64_t ch = 0; ch < C; ++ch) {
+                        const scalar_t* G = grad.data() + ch * P + r * TILE;
+                        scalar_t* L = lanes.data() + (6 + ch) * TILE;
+#pragma omp simd
+                        for (int32_t i = 0; i < LANES; ++i) {
+                            dl_dw[i] += G[i] * fg[ch];
+                            L[i] += w[i] * G[i];
+                        }
+                    }
+                    scalar_t* L = lanes.data();
+                    const scalar_t dy = (scalar_t)py + (scalar_t)0.5 - e.my;
+#pragma omp simd
+                    for (int32_t i = 0; i < LANES; ++i) {
+                        const scalar_t one_minus = 1 - s.alpha[i];
+                        scalar_t dl_dalpha = Tr[i] * dl_dw[i] - br[i] / one_minus;
+                        br[i] += w[i] * dl_dw[i];
+                        const scalar_t raw = e.o * s.ex[i];
+                        dl_dalpha = raw > (scalar_t)ALPHA_MAX ? (scalar_t)0 : dl_dalpha;  // clamped: flat
+                        dl_dalpha = ok[i] ? dl_dalpha : (scalar_t)0;
+                        const scalar_t dl_dsigma = -dl_dalpha * raw;
+                        const scalar_t dx = s.dx[i];
+                        // selected, not multiplied: a masked-out lane's terms may be NaN
+                        const scalar_t dmx = ok[i] ? -dl_dsigma * (e.a * dx + e.b * dy) : (scalar_t)0;
+                        const scalar_t dmy = ok[i] ? -dl_dsigma * (e.b * dx + e.c * dy) : (scalar_t)0;
+                        L[i] += dmx;
+                        L[TILE + i] += dmy;
+                        L[2 * TILE + i] += (scalar_t)0.5 * dl_dsigma * dx * dx;
+                        L[3 * TILE + i] += dl_dsigma * dx * dy;
+                        L[4 * TILE + i] += (scalar_t)0.5 * dl_dsigma * dy * dy;
+                        L[5 * TILE + i] += dl_dalpha * s.ex[i];
+                        L[(6 + C) * TILE + i] += std::abs(dmx);
+                        L[(7 + C) * TILE + i] += std::abs(dmy);
+                    }
+                }
+                if (any) {
+                    scalar_t* b = buf + e.g * K;
+                    for (int64_t q = 0; q < K; ++q) {
+                        scalar_t sum = 0;
+                        for (int64_t i = 0; i < TILE; ++i) sum += lanes[q * TILE + i];
+                        b[q] += sum;
                     }
                 }
             }
@@ -417,4 +514,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("roundtrip_backward", &roundtrip_backward, "PGSR's multi-view round trip (backward)");
     m.def("ncc_forward", &ncc_forward, "1 - NCC of homography-warped patches against K neighbours (forward)");
     m.def("ncc_backward", &ncc_backward, "1 - NCC of homography-warped patches (backward)");
+    m.def("ssim_forward", &ssim_forward, "mean SSIM, Gaussian window, zero padding (forward)");
+    m.def("ssim_backward", &ssim_backward, "mean SSIM (backward, first image)");
+    m.def("depth_normal_forward", &depth_normal_forward, "normals of a depth map (forward)");
+    m.def("depth_normal_backward", &depth_normal_backward, "normals of a depth map (backward)");
 }
