@@ -25,11 +25,15 @@ def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5,
          ) -> torch.Tensor:
     """Mean SSIM of two (H, W, C) images in [0, 1] (3DGS's Gaussian window, zero padding).
 
-    ``fused``: compute it in the C++ extension (``csrc/ssim.cpp``: separable blurs and an
-    analytic backward; gradients reach ``a`` only), which by default it does on the CPU when
-    ``b`` needs no gradient (the training image) and the extension builds; else with the
-    PyTorch operations below (the reference)."""
-    if (not b.requires_grad and _fused_here(a, [])) if fused is None else fused:
+    ``fused``: compute it in the C++ extension (``csrc/losses.cpp``: separable blurs and an
+    analytic backward; gradients reach ``a`` only), which by default it does in training: CPU
+    tensors, ``a`` needing a gradient and ``b`` none (the training image), and an extension
+    that builds; else with the PyTorch operations below (the reference)."""
+    if fused is None:
+        fused = a.requires_grad and not b.requires_grad and _fused_here(a, [])
+    if fused:
+        if b.requires_grad:
+            raise ValueError("ssim(fused=True) differentiates the first image only; b needs a gradient here")
         return _FusedSsim.apply(a, b, window, sigma)
     x, y = a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]
     c = x.shape[1]
@@ -85,9 +89,10 @@ def depth_to_normal(depth: torch.Tensor, cam: CameraTensors, span: int = 1, fuse
     zero on the ``span``-pixel border.
 
     ``fused``: in one pass of the C++ extension (``csrc/losses.cpp``, an analytic backward
-    for the depth), which by default it is on the CPU where the extension builds; else the
+    for the depth), which by default it is in training (a CPU depth that needs a gradient,
+    an extension that builds: stages that never render do not build it for this); else the
     PyTorch operations below (the reference)."""
-    if _fused_here(depth, []) if fused is None else fused:
+    if depth.requires_grad and _fused_here(depth, []) if fused is None else fused:
         return _DepthNormal.apply(depth, cam.rays(), span)
     p = depth_to_points(depth, cam)
     k = span
@@ -188,8 +193,9 @@ def relative_poses(ref: CameraTensors, nbrs: CameraStack) -> tuple[torch.Tensor,
 
 
 def _fused_here(image: torch.Tensor, maps: Sequence[torch.Tensor]) -> bool:
-    """Whether the multi-view terms run in the C++ extension: CPU tensors, neighbours' maps of
-    one size (the extension stacks them), and an extension that builds here."""
+    """Whether a loss runs in the C++ extension: CPU tensors, neighbours' maps of one size
+    (the multi-view terms stack them; the image losses pass none), and an extension that
+    builds here."""
     from eve3d.render import cpu
 
     return image.device.type == "cpu" and all(m.shape == maps[0].shape for m in maps) and cpu.available()

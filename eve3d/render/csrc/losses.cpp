@@ -100,7 +100,9 @@ void ssim_grad(const T* m, const T* x, const T* y, int64_t N, T scale, T* g) {
 }  // namespace
 
 std::vector<torch::Tensor> ssim_forward(torch::Tensor a, torch::Tensor b, int64_t window, double sigma) {
-    TORCH_CHECK(a.dim() == 3 && a.sizes() == b.sizes(), "ssim: two (H, W, C) images of one size");
+    TORCH_CHECK(a.device().is_cpu() && b.device().is_cpu(), "ssim: CPU tensors");
+    TORCH_CHECK(a.dim() == 3 && a.sizes() == b.sizes(), "ssim: two (H, W, C) images of one size, got ", a.sizes(),
+                " and ", b.sizes());
     const int64_t H = a.size(0), W = a.size(1), C = a.size(2), HW = H * W;
     // planar: x, y, x^2, y^2, xy of every channel; then their blurs
     auto x = a.permute({2, 0, 1}).contiguous(), y = b.permute({2, 0, 1}).contiguous().to(a.scalar_type());
@@ -117,6 +119,8 @@ std::vector<torch::Tensor> ssim_forward(torch::Tensor a, torch::Tensor b, int64_
 
 torch::Tensor ssim_backward(torch::Tensor a, torch::Tensor b, torch::Tensor derivs, int64_t window, double sigma,
                             double grad_out) {
+    TORCH_CHECK(a.dim() == 3 && a.sizes() == b.sizes() && derivs.size(0) == 3 && derivs.numel() == 3 * a.numel(),
+                "ssim backward: images (H, W, C) and derivatives (3, C, H, W) of one size");
     const int64_t H = a.size(0), W = a.size(1), C = a.size(2), HW = H * W;
     auto x = a.permute({2, 0, 1}).contiguous(), y = b.permute({2, 0, 1}).contiguous().to(a.scalar_type());
     auto blurred = derivs.clone();
@@ -209,7 +213,21 @@ void depth_normal_backward_impl(const T* depth, const T* rays, int64_t H, int64_
 
 }  // namespace
 
+namespace {
+
+void check_depth_rays(const torch::Tensor& depth, const torch::Tensor& rays, int64_t span) {
+    TORCH_CHECK(depth.device().is_cpu() && rays.device().is_cpu(), "depth_to_normal: CPU tensors");
+    TORCH_CHECK(depth.dim() == 2 && rays.dim() == 3 && rays.size(0) == depth.size(0) &&
+                    rays.size(1) == depth.size(1) && rays.size(2) == 3,
+                "depth_to_normal: depth (H, W) and rays (H, W, 3) of one size, got ", depth.sizes(), " and ",
+                rays.sizes());
+    TORCH_CHECK(span >= 1, "depth_to_normal: span >= 1, got ", span);
+}
+
+}  // namespace
+
 torch::Tensor depth_normal_forward(torch::Tensor depth, torch::Tensor rays, int64_t span) {
+    check_depth_rays(depth, rays, span);
     depth = depth.contiguous(), rays = rays.to(depth.scalar_type()).contiguous();
     auto normal = torch::empty({depth.size(0), depth.size(1), 3}, depth.options());
     AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "eve3d_depth_normal_forward", [&] {
@@ -220,6 +238,8 @@ torch::Tensor depth_normal_forward(torch::Tensor depth, torch::Tensor rays, int6
 }
 
 torch::Tensor depth_normal_backward(torch::Tensor depth, torch::Tensor rays, int64_t span, torch::Tensor grad_normal) {
+    check_depth_rays(depth, rays, span);
+    TORCH_CHECK(grad_normal.sizes() == rays.sizes(), "depth_to_normal: gradient of shape ", grad_normal.sizes());
     depth = depth.contiguous(), rays = rays.to(depth.scalar_type()).contiguous();
     grad_normal = grad_normal.contiguous();
     auto g_dx = torch::empty_like(grad_normal), g_dy = torch::empty_like(grad_normal);

@@ -22,8 +22,8 @@
 namespace {
 
 constexpr int64_t TILE = 16;
-constexpr int32_t LANES = TILE;
-constexpr int64_t AHEAD = 8;  // entries ahead whose scattered per-Gaussian data is prefetched  // a row of a tile: the pixels the vectorised loops take at once
+constexpr int32_t LANES = TILE;  // a row of a tile: the pixels the vectorised loops take at once
+constexpr int64_t AHEAD = 8;      // entries ahead whose scattered per-Gaussian data is prefetched
 constexpr double ALPHA_MIN = 1.0 / 255.0;
 constexpr double ALPHA_MAX = 0.999;
 constexpr double T_MIN = 1e-4;
@@ -185,8 +185,8 @@ inline void row_splat(const Entry<scalar_t>& e, int64_t x0, int64_t tw, int64_t 
 
 // Tiles in parallel; within a tile the list is walked once, in order, and each entry is
 // composited into the rows it reaches, TILE pixels at a time (vectorised). Each pixel sees the
-// same entries in the same order with the same arithmetic as a per-pixel loop, and keeps its
-// own transmittance, stop flag and count of entries consumed.
+// same entries in the same order with the same arithmetic as a per-pixel loop (with vexp), and
+// keeps its own transmittance, stop flag and count of entries consumed.
 template <typename scalar_t>
 int64_t forward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
                      int64_t V, const int64_t* off, const int64_t* ids, int64_t tiles, int64_t width, int64_t height,
