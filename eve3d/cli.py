@@ -129,7 +129,8 @@ def _cmd_joint(a: argparse.Namespace) -> None:
 
 def _cmd_mesh(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.mesh import check_mesh_path, fuse, write_mesh
+    from eve3d.layout import MESH_VIEWS_DIR
+    from eve3d.mesh import check_mesh_path, extent_report, fuse, write_mesh, write_mesh_views
     from eve3d.settings import MeshSettings
 
     check_mesh_path(Path(a.out))
@@ -139,11 +140,16 @@ def _cmd_mesh(a: argparse.Namespace) -> None:
         scene.kind = a.kind
     mesh = fuse(scene, Path(a.depth), settings)
     write_mesh(mesh, Path(a.out))
-    print(f"wrote {a.out}: {len(mesh.vertices)} vertices, {len(mesh.triangles)} triangles")
+    report = extent_report(mesh, scene)
+    print(f"wrote {a.out}: {len(mesh.vertices)} vertices, {report['triangles']} triangles, extent {report['extent']}"
+          + (f", {report['extent_ratio']:.2f}× the sparse points' 5–95 % box {report['sparse_extent']}"
+             if report["extent_ratio"] is not None else ""))
+    views = write_mesh_views(mesh, scene, Path(a.out).with_name(MESH_VIEWS_DIR))
+    print(f"wrote {len(views)} shaded views to {views[0].parent}")
 
 
 def _cmd_evaluate(a: argparse.Namespace) -> None:
-    from eve3d.evaluate import EvalInputs, protocol_for
+    from eve3d.evaluate import PROTOCOLS, EvalInputs, protocol_for
     from eve3d.fileio import atomic_path
     from eve3d.io import load_scene
     from eve3d.settings import EvalSettings, MeshSettings
@@ -152,7 +158,10 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     settings = _settings(a, EvalSettings, "evaluate", config)
     min_confidence = _settings(a, MeshSettings, "mesh", config).min_confidence  # the pixels the mesh fused
     scene = load_scene(a.scene, check_images=False)
-    protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol")
+    # a ground-truth key counts as given when the flag of its input is (--gt for gt_mesh)
+    flags = {key: field for p in PROTOCOLS.values() for field, key in p.config_inputs.items()}
+    protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol",
+                            lambda key: getattr(a, flags[key]) is not None)
     reconstruction = a.model if protocol.scores == "model" else a.mesh
     if reconstruction is None:
         flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
@@ -442,7 +451,7 @@ def _add_training_parsers(sub) -> None:
 
 
 def _add_mesh_parsers(sub) -> None:
-    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS
+    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS, WITHOUT_GT
     from typing import get_args
 
     from eve3d.scene import SceneKind
@@ -461,7 +470,8 @@ def _add_mesh_parsers(sub) -> None:
     s.add_argument("--model", help="a trained point_cloud.ply (protocol nvs)")
     s.add_argument("--out", required=True, help="metrics.json (tnt also writes precision.ply and recall.ply beside it)")
     s.add_argument("--protocol", choices=list(PROTOCOLS),
-                   help="default by dataset format: " + ", ".join(f"{k} → {v}" for k, v in DEFAULT_PROTOCOL.items()))
+                   help="default by dataset format when its ground truth is given: " + ", ".join(
+                       f"{k} → {v}" for k, v in DEFAULT_PROTOCOL.items()) + f"; else {WITHOUT_GT}")
     s.add_argument("--gt", help="synthetic: the GT mesh; dtu: the stl…_total.ply point cloud")
     s.add_argument("--obs-mask", help="dtu: ObsMask{scan}_10.mat")
     s.add_argument("--plane", help="dtu: Plane{scan}.mat")

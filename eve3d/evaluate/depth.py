@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.maps import load_maps
+from eve3d.maps import depth_at, load_maps, same_aspect
 from eve3d.settings import MeshSettings
 from eve3d.scene import Eve3dError
 
@@ -37,10 +37,13 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
         for file, m in ((ref_path, ref), (path, maps)):
             if "depth" not in m:
                 raise Eve3dError(f"{file}: no 'depth' array (it has {', '.join(m) or 'none'})")
-        confidence = maps.get("confidence", np.ones_like(maps["depth"]))
-        if maps["depth"].shape != ref["depth"].shape:
+        h, w = ref["depth"].shape
+        if not same_aspect(maps["depth"].shape, w, h):
             raise Eve3dError(f"{path}: depth is {maps['depth'].shape[::-1]}, the exact depth "
-                             f"{ref['depth'].shape[::-1]}: maps of different sizes cannot be compared")
+                             f"{ref['depth'].shape[::-1]}: maps of different shapes cannot be compared")
+        # a map made at another size (priors at the pretrain's) is scored at the exact depth's
+        maps = {k: depth_at(v, w, h) for k, v in maps.items()}
+        confidence = maps.get("confidence", np.ones_like(maps["depth"]))
         has = ref.get("confidence", ref["depth"]) > 0
         use = has & (confidence >= min_confidence) & (maps["depth"] > 0)
         errors.append((maps["depth"][use] - ref["depth"][use]) / ref["depth"][use])

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eve3d.maps import load_maps, preview_image
+from eve3d.maps import load_maps, preview_image, same_aspect
 from eve3d.scene import Camera, Eve3dError
 
 
@@ -52,7 +52,7 @@ def resample_prior(depth: np.ndarray, confidence: np.ndarray, width: int, height
 
 def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], device: torch.device,
                 normal_span: int = 1) -> Priors:
-    """The priors of every camera (``{folder}/{view}.npz``, at the dataset's size) resampled
+    """The priors of every camera (``{folder}/{view}.npz``, at any scale of its size) resampled
     to its training camera's size, with normals from the resampled depth (finite
     differences over ±``normal_span`` pixels). A missing, mis-sized or all-invalid map is an
     error naming the file."""
@@ -74,9 +74,9 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
         if "depth" not in maps or "confidence" not in maps:
             raise Eve3dError(f"{path}: a prior needs 'depth' and 'confidence' maps, it has {', '.join(maps)}")
         depth, conf = maps["depth"], maps["confidence"]
-        if depth.shape != (full.height, full.width) or conf.shape != depth.shape:
+        if conf.shape != depth.shape or not same_aspect(depth.shape, full.width, full.height):
             raise Eve3dError(f"{path}: maps are {depth.shape[1]}×{depth.shape[0]}, view {cam.view_id} is "
-                             f"{full.width}×{full.height}")
+                             f"{full.width}×{full.height} (or a scale of it)")
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0)
         depth, conf = resample_prior(depth, conf, cam.width, cam.height)
         if not ((depth > 0) & (conf > 0.5)).any():
