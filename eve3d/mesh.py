@@ -103,6 +103,8 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         block_count=blocks, device=o3c.Device("CPU:0"))
     for cam, depth in tqdm(fused_depths(scene, depth_dir, s), total=len(scene.cameras),
                            desc=f"TSDF (voxel {voxel:.4g})", unit="view"):
+        if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
+            continue
         intrinsic = o3c.Tensor(cam.K, o3c.float64)
         extrinsic = o3c.Tensor(cam.world_to_camera, o3c.float64)
         depth_img = o3d.t.geometry.Image(o3c.Tensor(depth))
@@ -204,18 +206,22 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray, like: Camera, s
 
 def view_cameras(mesh, scene: Scene, size: int = 640) -> list[Camera]:
     """Where the mesh is shown from: three training viewpoints spread over the capture and
-    one overview from further back and above, looking at the mesh's centre."""
+    one overview from 35° above the cameras' side, framing the sparse points' 5–95 % box
+    (the mesh's own box where there are no sparse points)."""
     picks = [scene.cameras[i] for i in sorted({round(f * (len(scene.cameras) - 1)) for f in (0, 0.5, 1)})]
     views = [c.scaled(size / max(c.width, c.height)) for c in picks]
-    box = mesh.get_axis_aligned_bounding_box()
-    centre, diagonal = np.asarray(box.get_center()), float(np.linalg.norm(box.get_extent()))
+    box = scene.sparse_box()
+    if box is None:
+        aabb = mesh.get_axis_aligned_bounding_box()
+        box = np.asarray(aabb.get_min_bound()), np.asarray(aabb.get_max_bound())
+    centre, diagonal = (box[0] + box[1]) / 2, float(np.linalg.norm(box[1] - box[0]))
     up = -np.mean([c.R[1] for c in scene.cameras], axis=0)  # image y points down
     up /= np.linalg.norm(up)
     back = scene.center - centre
     back = back - up * (back @ up)
     back = back / np.linalg.norm(back) if np.linalg.norm(back) > 1e-9 else -scene.cameras[0].R[2]
     like = scene.cameras[0]
-    distance = 0.6 * diagonal / np.tan(np.arctan(max(like.width, like.height) / 2 / like.fx))
+    distance = 0.5 * diagonal / np.tan(np.arctan(min(like.width, like.height) / 2 / like.fx))
     eye = centre + distance * (back * np.cos(np.radians(35)) + up * np.sin(np.radians(35)))
     return views + [look_at(eye, centre, up, like, size, "overview")]
 

@@ -266,8 +266,16 @@ def test_oracle_scores_near_perfectly_on_scenes_brought_by_a_user(tmp_path):
     assert room["tau"] > 5 * 0.005 * load_scene(tmp_path / "inside-room").radius  # not tied to the camera radius
 
 
-def test_scene_without_ground_truth_is_refused_before_any_job(tmp_path, object_dataset):
-    cfg = write_config(tmp_path, scenes={"mine": {"path": str(object_dataset)}})
+def test_scene_without_ground_truth_is_scored_on_held_out_views(tmp_path, object_dataset):
+    """No ground truth given: the nvs protocol, and every trained method meshed all the same;
+    a geometric protocol named without its ground truth is refused, naming the key."""
+    cfg = write_config(tmp_path, methods=["oracle", "stereo-tsdf", "pgsr"], scenes={"mine": {"path": str(object_dataset)}})
+    r = snakemake("-n", "-p", "--configfile", str(cfg), "--replace-workflow-config")
+    out = r.stdout + r.stderr
+    assert r.returncode == 0, out[-3000:]
+    assert f"--protocol nvs --model {tmp_path}/results/mine/pgsr/point_cloud.ply" in out
+    assert f"--out {tmp_path}/results/mine/pgsr/mesh.ply" in out and "mine/oracle" not in out
+    cfg = write_config(tmp_path, scenes={"mine": {"path": str(object_dataset), "protocol": "synthetic"}})
     r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode != 0
     assert "scenes.mine (protocol synthetic): give gt_mesh" in r.stdout + r.stderr

@@ -53,3 +53,44 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
     return {"data": label or str(maps_dir), "median_signed_error": stat(np.median),
             "median_rel_error": stat(lambda e: np.median(np.abs(e))), "density": confident / max(known, 1),
             "wrong_5": stat(lambda e: (np.abs(e) > 0.05).mean()), "wrong_10": stat(lambda e: (np.abs(e) > 0.10).mean())}
+
+
+def prior_agreement(scene, maps_dir: Path, neighbours: int = 2, stride: int = 4,
+                    min_confidence: float = MeshSettings.min_confidence) -> dict:
+    """Without ground truth: how far neighbouring views' depth maps agree. Every
+    ``stride``-th confident pixel of a view is back-projected and projected into each of its
+    ``neighbours`` (``eve3d.neighbours``); where it lands on a confident pixel of the
+    neighbour, the relative difference |z − D_n| / D_n between its depth there and the
+    neighbour's map counts. Returns the median of those differences, the share over 5 %,
+    the density (confident / all pixels) and how many pixels were compared. A surface seen
+    by both views agrees; a wrong depth in either does not (occlusions count against too)."""
+    from eve3d.neighbours import select_neighbours
+
+    maps_dir = Path(maps_dir)
+    views = []
+    for cam in scene.cameras:
+        path = maps_dir / f"{cam.view_id}.npz"
+        if not path.exists():
+            raise Eve3dError(f"{path}: missing (the scene has view {cam.view_id})")
+        m = load_maps(path)
+        depth = m["depth"]
+        if not same_aspect(depth.shape, cam.width, cam.height):
+            raise Eve3dError(f"{path}: depth is {depth.shape[1]}×{depth.shape[0]}, view is {cam.width}×{cam.height}")
+        depth = np.where(m.get("confidence", np.ones_like(depth)) >= min_confidence, depth, 0)
+        views.append((cam if depth.shape[1] == cam.width else cam.scaled(depth.shape[1] / cam.width), depth))
+    diffs, confident, pixels = [], 0, 0
+    for (cam, depth), near in zip(views, select_neighbours(scene, neighbours)):
+        confident, pixels = confident + int((depth > 0).sum()), pixels + depth.size
+        points = cam.backproject(depth)[::stride, ::stride][depth[::stride, ::stride] > 0]
+        for j in near:
+            other, their = views[j]
+            uv, z = other.project(points)
+            inside = other.in_image(uv, z)
+            px = np.floor(uv[inside]).astype(int)
+            d = their[px[:, 1], px[:, 0]]
+            ok = d > 0
+            diffs.append(np.abs(z[inside][ok] - d[ok]) / d[ok])
+    diff = np.concatenate(diffs) if diffs else np.zeros(0)
+    return {"data": str(maps_dir), "density": confident / max(pixels, 1),
+            "median_disagreement": float(np.median(diff)) if len(diff) else None,
+            "disagree_5": float((diff > 0.05).mean()) if len(diff) else None, "compared": int(len(diff))}

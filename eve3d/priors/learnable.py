@@ -21,14 +21,15 @@ from eve3d.scene import Camera, Eve3dError
 
 @dataclass
 class Priors:
-    """(V, H, W) maps at the training resolution, V = every view of the scene."""
+    """Per view of the scene, maps (H, W) at its training size (views may differ in size:
+    portrait and landscape photos)."""
 
-    depth: torch.Tensor
+    depth: list[torch.Tensor]
     """D*, camera z; 0 where the stereo stage gave no depth."""
-    confidence: torch.Tensor
+    confidence: list[torch.Tensor]
     """M^c (bool), updated during training by the multi-view check."""
-    normal: torch.Tensor
-    """(V, H, W, 3) N_prior of D* (camera space, facing the camera; 0 where undefined)."""
+    normal: list[torch.Tensor]
+    """(H, W, 3) N_prior of D* (camera space, facing the camera; 0 where undefined)."""
     digest: str
     """SHA-256 of the prior files: a checkpoint trained on other priors is not resumed."""
 
@@ -85,8 +86,8 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
         depths.append(d)
         confs.append(torch.from_numpy(conf > 0.5))
         normals.append(depth_to_normal(d, CameraTensors.from_camera(cam), normal_span))
-    return Priors(torch.stack(depths).to(device), torch.stack(confs).to(device), torch.stack(normals).to(device),
-                  digest.hexdigest()[:16])
+    on = lambda maps: [m.to(device) for m in maps]  # noqa: E731
+    return Priors(on(depths), on(confs), on(normals), digest.hexdigest()[:16])
 
 
 def filled_log_depth(depth: torch.Tensor) -> torch.Tensor:
