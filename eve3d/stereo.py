@@ -266,7 +266,9 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
                              f"{', '.join(sorted(PAIR_KEYS - views[cam.view_id].keys()))}"
                              " (written by an older eve3d); run `eve3d stereo-render` again")
     # every view at the size its right view was rendered at
-    cameras = [c.scaled(views[c.view_id]["scale"]) if views[c.view_id]["scale"] != 1 else c for c in scene.cameras]
+    # (no scale: written before priors were matched at the model's size, i.e. at the dataset's)
+    scales = [float(views[c.view_id].get("scale", 1.0)) for c in scene.cameras]
+    cameras = [c.scaled(f) if f != 1 else c for c, f in zip(scene.cameras, scales)]
     # neighbours are mostly the views around: a few decoded photos serve several views
     photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: tone[read_view(cameras[j])])
     with atomic_dir(out_dir) as tmp:
@@ -292,7 +294,7 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
                       confidence=confidence.astype(np.float32), normal=normal)
 
 
-PAIR_KEYS = {"scale", "baseline", "min_disparity", "max_disparity", "margin"}
+PAIR_KEYS = {"baseline", "min_disparity", "max_disparity", "margin"}
 
 
 def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSettings | None = None,
