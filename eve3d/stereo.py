@@ -136,10 +136,10 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
     at the size it was trained at (``right/{view}.png``, rasterised as it was trained:
     ``rendering``), and ``pairs.json``: per view the ``scale`` of that size (the photo is
     matched at it, so a model trained on smaller images is never asked for detail it does
-    not have), the baseline, the disparity range to search (from the left view's rendered depth: 1st and 99th percentiles, with 25 % margins)
-    and ``margin``, the columns the right view extends to the left of the photo's frame so
-    that no left pixel's match falls outside it (a matcher's search range then costs no
-    columns of the photo)."""
+    not have), the baseline, the disparity range to search (from the left view's rendered
+    depth: 1st and 99th percentiles, with 25 % margins) and ``margin``, the columns the
+    right view extends to the left of the photo's frame so that no left pixel's match falls
+    outside it (a matcher's search range then costs no columns of the photo)."""
     import torch
 
     from eve3d.gaussians import GaussianModel
