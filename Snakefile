@@ -13,4 +13,5 @@ include: "workflow/rules/evaluate.smk"
 rule all:
     input:
         LAYOUT.summary(),
+        mesh_files(),
     default_target: True

@@ -194,7 +194,7 @@ def prior_accuracy(priors_dir, reference_dir, scene: str = "") -> dict:
     return {**depth_accuracy(priors_dir, reference_dir, scene), "backend": Path(priors_dir).name}
 
 
-def format_stereo_tables(moto: list[dict], priors: list[dict]) -> str:
+def format_stereo_tables(moto: list[dict], priors: list[dict], agreement: list[dict] = ()) -> str:
     lines = ["real pair (Middlebury Motorcycle): confident pixels only",
              "backend  size     density  EPE px  bad-2.0 %  seconds"]
     lines += [f"{r['backend']:<8} {r['size']:<8} {r['density']:7.3f}  {r['epe']:6.3f}  {r['bad2']:9.2f}  "
@@ -202,7 +202,21 @@ def format_stereo_tables(moto: list[dict], priors: list[dict]) -> str:
     if priors:
         lines += ["", "synthetic scenes: priors against the exact depth, confident pixels"]
         lines += prior_lines("scene / priors", [r["data"] for r in priors], priors)
+    if agreement:
+        lines += ["", "without ground truth: neighbouring views' priors against each other, confident pixels"]
+        lines += agreement_lines(agreement)
     return "\n".join(lines)
+
+
+def agreement_lines(rows: list[dict]) -> list[str]:
+    """A table of :func:`eve3d.evaluate.depth.prior_agreement` rows."""
+    width = max(len("priors"), *(len(r["data"]) for r in rows))
+    lines = [f"{'priors':<{width}} {'density':>8} {'median disagreement':>20} {'over 5 %':>9} {'compared':>9}"]
+    for r in rows:
+        median = "-" if r["median_disagreement"] is None else f"{r['median_disagreement'] * 100:.2f} %"
+        over = "-" if r["disagree_5"] is None else f"{r['disagree_5'] * 100:.1f} %"
+        lines.append(f"{r['data']:<{width}} {r['density']:8.3f} {median:>20} {over:>9} {r['compared']:>9,}")
+    return lines
 
 
 def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
@@ -376,6 +390,75 @@ def format_methods_report(report: dict) -> str:
                   "signed: positive = too far"]
         lines += prior_lines("scene / priors", [f"{r['data']} / {r['priors']}" for r in report["priors"]],
                              report["priors"])
+    return "\n".join(lines)
+
+
+def real_report(config: dict) -> dict:
+    """The table of ``eve3d bench real`` from a finished workflow run of ``config``
+    (resolved): per scene the photos and the views SfM registered, every job's wall time,
+    the held-out PSNR/SSIM of the pretrain and of each trained method, the priors' density
+    and the agreement of neighbouring views' priors, and each mesh's triangles and extent
+    against the sparse points' 5–95 % box."""
+    from pathlib import Path
+
+    import open3d as o3d
+
+    from eve3d.evaluate.depth import prior_agreement
+    from eve3d.io import load_scene
+    from eve3d.layout import PRETRAIN, Layout
+    from eve3d.mesh import extent_report
+    from eve3d.photos import scan_photos
+
+    layout, backend = Layout(config["results"]), config["stereo"]["backend"]
+    scenes = []
+    for name, sc in config["scenes"].items():
+        posed = layout.sfm(name) if layout.sfm(name).is_dir() else Path(sc["path"])
+        scene = load_scene(posed, check_images=False)
+        row = {"scene": name, "photos": len(scan_photos(Path(sc["path"]) / "images")), "registered": len(scene.cameras),
+               "points": 0 if scene.points is None else len(scene.points)}
+        bench_dir = layout.root / "benchmarks" / name
+        row["seconds"] = {p.stem: _stage_seconds(p) for p in sorted(bench_dir.glob("*.tsv"))}
+        held = {}
+        pre = layout.train_metrics(name, PRETRAIN)
+        if pre.is_file():
+            held[PRETRAIN] = json.loads(pre.read_text()).get("held_out", {})
+        meshes = {}
+        for method in sc.get("methods", config["methods"]):
+            if layout.metrics(name, method).is_file():
+                m = json.loads(layout.metrics(name, method).read_text())
+                held[method] = {k: m.get(k) for k in ("psnr", "ssim", "views")}
+            if layout.mesh(name, method).is_file():
+                meshes[method] = extent_report(o3d.io.read_triangle_mesh(str(layout.mesh(name, method))), scene)
+        row["held_out"], row["meshes"] = held, meshes
+        priors = layout.priors(name, backend)
+        row["priors"] = prior_agreement(scene, priors) if priors.is_dir() else None
+        scenes.append(row)
+    return {"scenes": scenes}
+
+
+def format_real_report(report: dict) -> str:
+    cell = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
+    lines = []
+    for r in report["scenes"]:
+        total = sum(v for v in r["seconds"].values() if v is not None)
+        lines += [f"{r['scene']}: {r['registered']} of {r['photos']} photos registered, {r['points']:,} sparse points",
+                  "", f"{'job':<28} {'seconds':>8}"]
+        lines += [f"{job:<28} {cell(sec, '8.0f')}" for job, sec in r["seconds"].items()]
+        lines += [f"{'total':<28} {total:8.0f}  ({total / 60:.1f} min)", "",
+                  f"{'held-out views':<16} {'PSNR dB':>8} {'SSIM':>7} {'views':>6}"]
+        lines += [f"{m:<16} {cell(h.get('psnr'), '8.2f')} {cell(h.get('ssim'), '7.4f')} {cell(h.get('views'), '6d')}"
+                  for m, h in r["held_out"].items()]
+        if r["priors"]:
+            lines += ["", "priors, neighbouring views against each other (confident pixels)"]
+            lines += agreement_lines([{**r["priors"], "data": "priors"}])
+        if r["meshes"]:
+            lines += ["", f"{'mesh':<16} {'triangles':>10} {'extent':>26} {'× sparse 5–95 % box':>20}"]
+            lines += [f"{m:<16} {x['triangles']:>10,} {' × '.join(f'{e:.2f}' for e in x['extent']):>26} "
+                      f"{cell(x['extent_ratio'], '20.2f')}" for m, x in r["meshes"].items()]
+            box = next(iter(r["meshes"].values()))["sparse_extent"]
+            if box:
+                lines.append(f"sparse points' 5–95 % box: {' × '.join(f'{e:.2f}' for e in box)}")
+        lines.append("")
     return "\n".join(lines)
 
 

@@ -129,7 +129,8 @@ def _cmd_joint(a: argparse.Namespace) -> None:
 
 def _cmd_mesh(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
-    from eve3d.mesh import check_mesh_path, fuse, write_mesh
+    from eve3d.layout import MESH_VIEWS_DIR
+    from eve3d.mesh import check_mesh_path, extent_report, fuse, write_mesh, write_mesh_views
     from eve3d.settings import MeshSettings
 
     check_mesh_path(Path(a.out))
@@ -139,11 +140,16 @@ def _cmd_mesh(a: argparse.Namespace) -> None:
         scene.kind = a.kind
     mesh = fuse(scene, Path(a.depth), settings)
     write_mesh(mesh, Path(a.out))
-    print(f"wrote {a.out}: {len(mesh.vertices)} vertices, {len(mesh.triangles)} triangles")
+    report = extent_report(mesh, scene)
+    print(f"wrote {a.out}: {len(mesh.vertices)} vertices, {report['triangles']} triangles, extent {report['extent']}"
+          + (f", {report['extent_ratio']:.2f}× the sparse points' 5–95 % box {report['sparse_extent']}"
+             if report["extent_ratio"] is not None else ""))
+    views = write_mesh_views(mesh, scene, Path(a.out).with_name(MESH_VIEWS_DIR))
+    print(f"wrote {len(views)} shaded views to {views[0].parent}")
 
 
 def _cmd_evaluate(a: argparse.Namespace) -> None:
-    from eve3d.evaluate import EvalInputs, protocol_for
+    from eve3d.evaluate import PROTOCOLS, EvalInputs, protocol_for
     from eve3d.fileio import atomic_path
     from eve3d.io import load_scene
     from eve3d.settings import EvalSettings, MeshSettings
@@ -152,7 +158,10 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     settings = _settings(a, EvalSettings, "evaluate", config)
     min_confidence = _settings(a, MeshSettings, "mesh", config).min_confidence  # the pixels the mesh fused
     scene = load_scene(a.scene, check_images=False)
-    protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol")
+    # a ground-truth key counts as given when the flag of its input is (--gt for gt_mesh)
+    flags = {key: field for p in PROTOCOLS.values() for field, key in p.config_inputs.items()}
+    protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol",
+                            lambda key: getattr(a, flags[key]) is not None)
     reconstruction = a.model if protocol.scores == "model" else a.mesh
     if reconstruction is None:
         flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
@@ -213,15 +222,22 @@ def _cmd_bench_training(a: argparse.Namespace) -> None:
 def _cmd_bench_stereo(a: argparse.Namespace) -> None:
     from eve3d import bench
 
-    priors = []
+    priors, agreement = [], []
     for folder in map(Path, a.priors):
-        oracle = folder.parent / "oracle"
-        if not oracle.is_dir():
-            raise Eve3dError(f"{folder}: no oracle priors beside it ({oracle}) to score against")
-        priors.append(bench.prior_accuracy(folder, oracle, f"{folder.parent.parent.name}/{folder.name}"))
+        oracle, label = folder.parent / "oracle", f"{folder.parent.parent.name}/{folder.name}"
+        if oracle.is_dir():
+            priors.append(bench.prior_accuracy(folder, oracle, label))
+        elif a.scene:
+            from eve3d.evaluate.depth import prior_agreement
+            from eve3d.io import load_scene
+
+            agreement.append({**prior_agreement(load_scene(a.scene, check_images=False), folder), "data": label})
+        else:
+            raise Eve3dError(f"{folder}: no oracle priors beside it ({oracle}) to score against; give --scene (the "
+                             f"posed dataset) to measure how neighbouring views' priors agree instead")
     moto = [bench.stereo_motorcycle(), bench.stereo_motorcycle(wls=True)]
-    print(json.dumps({"motorcycle": moto, "priors": priors}, indent=2) if a.json
-          else bench.format_stereo_tables(moto, priors))
+    print(json.dumps({"motorcycle": moto, "priors": priors, "agreement": agreement}, indent=2) if a.json
+          else bench.format_stereo_tables(moto, priors, agreement))
 
 
 def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
@@ -233,10 +249,10 @@ def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
     print(json.dumps(rows, indent=2) if a.json else bench.format_evaluate_table(rows))
 
 
-def _cmd_bench_methods(a: argparse.Namespace) -> None:
+def _benchmark_workflow(a: argparse.Namespace) -> dict:
+    """Run the workflow of a benchmark's config (unless --report-only); its resolved config."""
     import subprocess
 
-    from eve3d import bench
     from eve3d.config import REPO, load_config
     from eve3d.layout import Layout
 
@@ -246,8 +262,21 @@ def _cmd_bench_methods(a: argparse.Namespace) -> None:
                "--replace-workflow-config", f"-c{a.cores}", "--quiet", "rules", "progress"]
         if subprocess.run(cmd).returncode != 0:
             raise Eve3dError(f"the workflow of {a.config} failed (its logs: {Layout(config['results']).logs()}/)")
-    report = bench.methods_report(config)
+    return config
+
+
+def _cmd_bench_methods(a: argparse.Namespace) -> None:
+    from eve3d import bench
+
+    report = bench.methods_report(_benchmark_workflow(a))
     print(json.dumps(report, indent=2) if a.json else bench.format_methods_report(report))
+
+
+def _cmd_bench_real(a: argparse.Namespace) -> None:
+    from eve3d import bench
+
+    report = bench.real_report(_benchmark_workflow(a))
+    print(json.dumps(report, indent=2) if a.json else bench.format_real_report(report))
 
 
 def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:
@@ -442,7 +471,7 @@ def _add_training_parsers(sub) -> None:
 
 
 def _add_mesh_parsers(sub) -> None:
-    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS
+    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS, WITHOUT_GT
     from typing import get_args
 
     from eve3d.scene import SceneKind
@@ -461,7 +490,8 @@ def _add_mesh_parsers(sub) -> None:
     s.add_argument("--model", help="a trained point_cloud.ply (protocol nvs)")
     s.add_argument("--out", required=True, help="metrics.json (tnt also writes precision.ply and recall.ply beside it)")
     s.add_argument("--protocol", choices=list(PROTOCOLS),
-                   help="default by dataset format: " + ", ".join(f"{k} → {v}" for k, v in DEFAULT_PROTOCOL.items()))
+                   help="default by dataset format when its ground truth is given: " + ", ".join(
+                       f"{k} → {v}" for k, v in DEFAULT_PROTOCOL.items()) + f"; else {WITHOUT_GT}")
     s.add_argument("--gt", help="synthetic: the GT mesh; dtu: the stl…_total.ply point cloud")
     s.add_argument("--obs-mask", help="dtu: ObsMask{scan}_10.mat")
     s.add_argument("--plane", help="dtu: Plane{scan}.mat")
@@ -500,6 +530,8 @@ def _add_bench_parser(sub) -> None:
     st = what.add_parser("stereo", help="sgbm on the Motorcycle pair; priors of synthetic scenes vs exact depth")
     st.add_argument("--priors", nargs="*", default=[], metavar="DIR",
                     help="prior folders (results/{scene}/priors/{backend}) to score against the oracle folder beside them")
+    st.add_argument("--scene", help="posed dataset of --priors that have no oracle beside them (a real capture): "
+                                    "their density and the agreement of neighbouring views")
     st.add_argument("--json", action="store_true", help="machine-readable output")
     st.set_defaults(func=_cmd_bench_stereo)
     ev = what.add_parser("evaluate", help="time of the synthetic protocol on meshes with floaters (and on given meshes)")
@@ -508,13 +540,18 @@ def _add_bench_parser(sub) -> None:
     ev.add_argument("--gt", help="GT mesh of the given meshes")
     ev.add_argument("--json", action="store_true", help="machine-readable output")
     ev.set_defaults(func=_cmd_bench_evaluate)
-    me = what.add_parser("methods", help="run every method on the generated object and room (Snakemake) and print "
-                                         "scores, times and the priors' accuracy")
-    me.add_argument("--config", default="config/bench/methods.yaml", help="workflow config of the benchmark")
-    me.add_argument("--cores", type=int, default=2)
-    me.add_argument("--report-only", action="store_true", help="print the table of a finished run without running")
-    me.add_argument("--json", action="store_true", help="machine-readable output")
-    me.set_defaults(func=_cmd_bench_methods)
+    for name, func, config, help in [
+            ("methods", _cmd_bench_methods, "methods", "run every method on the generated object and room (Snakemake) "
+                                                        "and print scores, times and the priors' accuracy"),
+            ("real", _cmd_bench_real, "real", "run a real capture as a user would (photos and their path, Snakemake) "
+                                              "and print views registered, stage times, held-out PSNR/SSIM, the "
+                                              "priors' density and agreement, the meshes' size")]:
+        me = what.add_parser(name, help=help)
+        me.add_argument("--config", default=f"config/bench/{config}.yaml", help="workflow config of the benchmark")
+        me.add_argument("--cores", type=int, default=2)
+        me.add_argument("--report-only", action="store_true", help="print the table of a finished run without running")
+        me.add_argument("--json", action="store_true", help="machine-readable output")
+        me.set_defaults(func=func)
 
 
 def main(argv: list[str] | None = None) -> int:

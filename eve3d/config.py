@@ -113,14 +113,16 @@ def has_gt_mesh(scene: dict) -> bool:
 
 def scene_protocol(name: str, scene: dict):
     """The evaluation protocol (``eve3d.evaluate.Protocol``) of the workflow scene ``name``:
-    its ``protocol`` key, else the default of its dataset format; an error names the key
-    when the protocol is unknown or the scene lacks what the protocol needs."""
+    its ``protocol`` key, else the default of its dataset format when any of that protocol's
+    ground truth is given, else ``nvs`` (``eve3d.evaluate.protocol_for``); an error names the
+    key when the protocol is unknown or the scene lacks what the protocol needs."""
     from eve3d.evaluate import protocol_for
     from eve3d.io.loader import dataset_format, has_poses
 
     # A generated scene is a COLMAP dataset with exact poses that does not exist yet.
     fmt = "colmap" if "synthetic" in scene else dataset_format(Path(scene["path"]))
-    protocol = protocol_for(scene.get("protocol"), fmt, f"scenes.{name}.protocol")
+    given = lambda key: scene_value(scene, key) is not None or (key == "gt_mesh" and has_gt_mesh(scene))  # noqa: E731
+    protocol = protocol_for(scene.get("protocol"), fmt, f"scenes.{name}.protocol", given)
     where = f"scenes.{name} (protocol {protocol.name})"
     if protocol.formats and fmt not in protocol.formats:
         raise Eve3dError(f"{where}: {scene.get('path')} is a {fmt} dataset, the protocol scores "
@@ -129,7 +131,7 @@ def scene_protocol(name: str, scene: dict):
         raise Eve3dError(f"{where}: {scene['path']} has no poses, and SfM would pose it in a frame of its own, "
                          f"where its ground truth does not lie; bring the dataset with its poses")
     for key in protocol.config_inputs.values():
-        if scene_value(scene, key) is None and not (key == "gt_mesh" and has_gt_mesh(scene)):
+        if not given(key):
             raise Eve3dError(f"{where}: give {key}" + (
                 ", a GT mesh in the dataset's frame (or protocol: nvs to score held-out views)"
                 if key == "gt_mesh" else ""))

@@ -79,10 +79,11 @@ def check_image(path: Path, size: tuple[int, int] | None = None) -> tuple[int, i
 
 
 def read_image(path: Path) -> np.ndarray:
-    """RGB uint8 image (H,W,3)."""
+    """RGB uint8 image (H,W,3), its pixels as stored: an EXIF orientation tag is ignored, as
+    COLMAP ignores it (``eve3d.photos``: SfM imports tagged photos upright)."""
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     if img is None:
         raise Eve3dError(f"{path}: corrupt or unreadable image")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)

@@ -91,7 +91,8 @@ class PriorState:
 
     def __init__(self, state: TrainState, views: Views, priors: Priors, s: JointSettings):
         self.views, self.s, self.star = views, s, priors
-        self.confidence = state.add_buffer("prior_confidence", priors.confidence.clone())
+        self.confidence = [state.add_buffer(f"prior_confidence/{i}", c.clone())
+                           for i, c in enumerate(priors.confidence)]
         self.learnable = s.priors == "learnable"
         self.log_depth = [state.add_extra(f"prior_log_depth/{i}", filled_log_depth(d), s.prior_lr)
                           for i, d in enumerate(priors.depth)] if self.learnable else []
@@ -110,7 +111,7 @@ class PriorState:
                                                   self.views[i].cam, CameraStack([n.cam for n in neighbours]))
             checks = defined & (phi < self.s.mv_threshold)
         passed = checks.sum(0)
-        self.confidence[i] = (self.star.depth[i] > 0) & (passed >= self.s.consistent_views)
+        self.confidence[i].copy_((self.star.depth[i] > 0) & (passed >= self.s.consistent_views))
 
 
 def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None,

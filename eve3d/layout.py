@@ -13,7 +13,7 @@ that write fixed names inside their output folder use the file-name constants be
     {results}/{scene}/priors/{backend}/       depth priors
     {results}/{scene}/pretrain/               point_cloud.ply, tone_curve.json, train_metrics.json
     {results}/{scene}/{method}/               point_cloud.ply, depth/, priors/, train_metrics.json,
-                                              mesh.ply, metrics.json
+                                              mesh.ply, mesh_views/, metrics.json, held_out/
 
 A wildcard in place of a name gives the Snakemake pattern:
 ``Layout("results").mesh("{scene}", "{method}")`` is ``results/{scene}/{method}/mesh.ply``.
@@ -40,6 +40,10 @@ PRIORS_DIR = "priors"
 """Depth priors: per scene ``priors/{backend}``; in a learnable method's folder its final D̂."""
 PREVIEWS_DIR = "previews"
 MESH_FILE = "mesh.ply"
+MESH_VIEWS_DIR = "mesh_views"
+"""Shaded renders of a mesh (PNG), written beside it by the mesh stage."""
+HELD_OUT_DIR = "held_out"
+"""The nvs protocol's held-out views: rendered | photo (PNG), beside the metrics."""
 METRICS_FILE = "metrics.json"
 """An evaluation record (``"record": "evaluation"``)."""
 SUMMARY_FILE = "summary.csv"

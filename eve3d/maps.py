@@ -28,6 +28,22 @@ def load_maps(path: Path) -> dict[str, np.ndarray]:
         raise Eve3dError(f"{path}: cannot read map file ({e})") from None
 
 
+def same_aspect(shape: tuple[int, ...], width: int, height: int) -> bool:
+    """Whether a map of ``shape`` (H, W, ...) is a ``width``×``height`` image at some scale
+    (to a pixel of rounding), so it can be resampled to that size."""
+    h, w = shape[:2]
+    return abs(h * width / w - height) <= 1 + width / w
+
+
+def depth_at(depth: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A depth map at another size, nearest sample (no depths of two surfaces mixed)."""
+    import cv2
+
+    if depth.shape[:2] == (height, width):
+        return depth
+    return cv2.resize(depth, (width, height), interpolation=cv2.INTER_NEAREST)
+
+
 def preview_image(key: str, arr: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
     """RGB uint8 preview: depth coloured (turbo, near = red), confidence grey, normals RGB."""
     import cv2

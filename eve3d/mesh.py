@@ -6,13 +6,15 @@ depth maps actually touch.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from eve3d.fileio import atomic_path, read_image
-from eve3d.maps import load_maps
+from eve3d.fileio import atomic_path
+from eve3d.photos import read_view
+from eve3d.maps import load_maps, same_aspect
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.settings import MeshSettings
 
@@ -20,18 +22,29 @@ BLOCK_RESOLUTION = 8
 
 
 def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
-    """Yield (camera, depth with low-confidence pixels zeroed) for every view."""
+    """Yield (camera at the map's size, depth with low-confidence pixels zeroed) for every view."""
     for cam in scene.cameras:
         path = depth_dir / f"{cam.view_id}.npz"
         if not path.exists():
             raise Eve3dError(f"{path}: depth map missing for view {cam.view_id}")
         maps = load_maps(path)
         depth = maps["depth"].astype(np.float32)
-        if depth.shape != (cam.height, cam.width):
-            raise Eve3dError(f"{path}: depth is {depth.shape[1]}×{depth.shape[0]}, view is {cam.width}×{cam.height}")
+        if not same_aspect(depth.shape, cam.width, cam.height):
+            raise Eve3dError(f"{path}: depth is {depth.shape[1]}×{depth.shape[0]}, view is {cam.width}×{cam.height} "
+                             f"(or a scale of it)")
         if "confidence" in maps:
             depth = np.where(maps["confidence"] >= min_confidence, depth, 0).astype(np.float32)
-        yield cam, depth
+        # fused at the map's own size (priors are matched at the size the model was trained at)
+        yield (cam if depth.shape[1] == cam.width else cam.scaled(depth.shape[1] / cam.width)), depth
+
+
+def in_region(cam: Camera, depth: np.ndarray, region: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """``depth`` with every pixel whose point lies outside ``region`` (lo, hi) zeroed."""
+    if region is None:
+        return depth
+    points = cam.backproject(depth)
+    inside = np.all((points >= region[0]) & (points <= region[1]), axis=-1)
+    return np.where(inside, depth, 0).astype(np.float32)
 
 
 def _touched(cam: Camera, depth: np.ndarray, stride: int = 2) -> np.ndarray:
@@ -41,12 +54,19 @@ def _touched(cam: Camera, depth: np.ndarray, stride: int = 2) -> np.ndarray:
     return pts[d > 0]
 
 
-def plan_grid(scene: Scene, depth_dir: Path, s: MeshSettings) -> tuple[float, int]:
-    """Voxel size and a block count that covers every block the depth maps touch."""
-    pts = []
+def fused_depths(scene: Scene, depth_dir: Path, s: MeshSettings):
+    """:func:`view_depths`, only the depths within ``depth_max`` and the region of interest."""
+    region = scene.region(s.region) if s.region else None
     for cam, depth in view_depths(scene, depth_dir, s.min_confidence):
         if s.depth_max:
             depth = np.where(depth <= s.depth_max, depth, 0)
+        yield cam, in_region(cam, depth, region)
+
+
+def plan_grid(scene: Scene, depth_dir: Path, s: MeshSettings) -> tuple[float, int]:
+    """Voxel size and a block count that covers every block the depth maps touch."""
+    pts = []
+    for cam, depth in fused_depths(scene, depth_dir, s):
         sample = _touched(cam, depth, stride=4)
         pts.append(sample[:: max(1, len(sample) // 20000)])
     pts = np.concatenate(pts) if pts else np.zeros((0, 3))
@@ -57,7 +77,7 @@ def plan_grid(scene: Scene, depth_dir: Path, s: MeshSettings) -> tuple[float, in
         if scene.kind == "object":
             voxel = 0.002 * scene.object_radius * s.coarsen
         else:
-            lo, hi = np.percentile(pts, [0.5, 99.5], axis=0)
+            lo, hi = np.percentile(pts, [0.5, 99.5], axis=0)  # within the region: a sky sets no size
             voxel = float(np.max(hi - lo)) / 2048 * s.coarsen
     block = voxel * BLOCK_RESOLUTION
     keys = np.unique(np.floor(pts / block).astype(np.int64), axis=0)
@@ -81,13 +101,15 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
         attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=BLOCK_RESOLUTION,
         block_count=blocks, device=o3c.Device("CPU:0"))
-    for cam, depth in tqdm(view_depths(scene, depth_dir, s.min_confidence), total=len(scene.cameras),
+    for cam, depth in tqdm(fused_depths(scene, depth_dir, s), total=len(scene.cameras),
                            desc=f"TSDF (voxel {voxel:.4g})", unit="view"):
+        if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
+            continue
         intrinsic = o3c.Tensor(cam.K, o3c.float64)
         extrinsic = o3c.Tensor(cam.world_to_camera, o3c.float64)
         depth_img = o3d.t.geometry.Image(o3c.Tensor(depth))
         if cam.image_path is not None and cam.image_path.exists():
-            rgb = read_image(cam.image_path).astype(np.float32) / 255.0
+            rgb = read_view(cam).astype(np.float32) / 255.0
         else:
             rgb = np.full((cam.height, cam.width, 3), 0.7, np.float32)
         color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
@@ -96,6 +118,9 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
                       trunc_voxel_multiplier=s.trunc_factor)
     mesh = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold).to_legacy()
+    region = scene.region(s.region) if s.region else None
+    if region is not None:  # the truncation band reaches a few voxels past the fused depths
+        mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(*region))
     if len(mesh.triangles) == 0:
         raise Eve3dError(f"{depth_dir}: TSDF fusion produced an empty mesh")
     keep_largest = s.largest_cluster if s.largest_cluster is not None else scene.kind == "object"
@@ -154,3 +179,72 @@ def write_mesh(mesh, path: Path) -> None:
     with atomic_path(path) as tmp:
         if not o3d.io.write_triangle_mesh(str(tmp), mesh):
             raise Eve3dError(f"{path}: could not write mesh")
+
+
+def extent_report(mesh, scene: Scene) -> dict:
+    """The mesh's size against the sparse points' 5–95 % box: triangles, both extents per
+    axis, and the largest ratio of the two (None without sparse points)."""
+    v = np.asarray(mesh.vertices)
+    extent = v.max(0) - v.min(0) if len(v) else np.zeros(3)
+    box = scene.sparse_box()
+    sparse = None if box is None else box[1] - box[0]
+    ratio = None if sparse is None else float(np.max(extent / np.maximum(sparse, 1e-12)))
+    return {"triangles": len(mesh.triangles), "extent": extent.round(4).tolist(),
+            "sparse_extent": None if sparse is None else sparse.round(4).tolist(), "extent_ratio": ratio}
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray, like: Camera, size: int, name: str) -> Camera:
+    """A camera at ``eye`` looking at ``target`` (``up`` up in the image), with ``like``'s
+    field of view and aspect, its longest side ``size`` px."""
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])
+    small = like.scaled(size / max(like.width, like.height))
+    return replace(small, name=name, R=R, t=-R @ eye, image_path=None, mask_path=None)
+
+
+def view_cameras(mesh, scene: Scene, size: int = 640) -> list[Camera]:
+    """Where the mesh is shown from: three training viewpoints spread over the capture and
+    one overview from 35° above the cameras' side, framing the sparse points' 5–95 % box
+    (the mesh's own box where there are no sparse points)."""
+    picks = [scene.cameras[i] for i in sorted({round(f * (len(scene.cameras) - 1)) for f in (0, 0.5, 1)})]
+    views = [c.scaled(size / max(c.width, c.height)) for c in picks]
+    box = scene.sparse_box()
+    if box is None:
+        aabb = mesh.get_axis_aligned_bounding_box()
+        box = np.asarray(aabb.get_min_bound()), np.asarray(aabb.get_max_bound())
+    centre, diagonal = (box[0] + box[1]) / 2, float(np.linalg.norm(box[1] - box[0]))
+    up = -np.mean([c.R[1] for c in scene.cameras], axis=0)  # image y points down
+    up /= np.linalg.norm(up)
+    back = scene.center - centre
+    back = back - up * (back @ up)
+    back = back / np.linalg.norm(back) if np.linalg.norm(back) > 1e-9 else -scene.cameras[0].R[2]
+    like = scene.cameras[0]
+    distance = 0.5 * diagonal / np.tan(np.arctan(min(like.width, like.height) / 2 / like.fx))
+    eye = centre + distance * (back * np.cos(np.radians(35)) + up * np.sin(np.radians(35)))
+    return views + [look_at(eye, centre, up, like, size, "overview")]
+
+
+def shaded(mesh, cam: Camera) -> np.ndarray:
+    """RGB uint8 of the mesh seen by ``cam``, ray-cast on the CPU: clay-coloured Lambert
+    shading under a light above and to the left of the camera, white background."""
+    from eve3d.raycast import MeshRaycaster
+
+    hits = MeshRaycaster([mesh]).cast(cam)
+    light = cam.R.T @ np.array([-0.4, -0.6, -1.0])
+    light /= np.linalg.norm(light)
+    lambert = np.clip(hits.normal @ light, 0, 1)
+    shade = (0.25 + 0.75 * lambert)[..., None] * np.array([0.85, 0.80, 0.72])
+    return np.where(hits.valid[..., None], shade * 255, 255).round().astype(np.uint8)
+
+
+def write_mesh_views(mesh, scene: Scene, out_dir: Path, size: int = 640) -> list[Path]:
+    """:func:`shaded` renders from :func:`view_cameras` as ``out_dir/{view}.png``."""
+    from eve3d.fileio import write_image
+
+    paths = []
+    for cam in view_cameras(mesh, scene, size):
+        paths.append(out_dir / f"{cam.view_id}.png")
+        write_image(paths[-1], shaded(mesh, cam))
+    return paths

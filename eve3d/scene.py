@@ -159,6 +159,23 @@ class Scene:
             return float(np.quantile(d, 0.95))
         return self.radius / 3.0
 
+    def sparse_box(self, low: float = 5.0, high: float = 95.0) -> tuple[np.ndarray, np.ndarray] | None:
+        """The box of the sparse points' ``low``–``high`` percentiles per axis (robust to far
+        background points and outliers); None without at least 10 points."""
+        if self.points is None or len(self.points) < 10:
+            return None
+        lo, hi = np.percentile(self.points, [low, high], axis=0)
+        return lo, hi
+
+    def region(self, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The region of interest, what the cameras look at: :meth:`sparse_box` scaled by
+        ``scale`` about its centre; None without sparse points."""
+        box = self.sparse_box()
+        if box is None:
+            return None
+        centre, half = (box[0] + box[1]) / 2, (box[1] - box[0]) / 2 * scale
+        return centre - half, centre + half
+
     def camera(self, view_id: str) -> Camera:
         for cam in self.cameras:
             if cam.view_id == view_id:

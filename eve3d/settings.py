@@ -254,7 +254,8 @@ class SfmSettings(Checked):
     single_camera: bool = True
     """All images share one camera (one device, fixed zoom)."""
     max_image_size: int = setting(3200, ge=64)
-    """Longest image side fed to SIFT (larger images are downscaled for extraction)."""
+    """Longest side of the photos SfM imports (larger ones are downscaled once, before SIFT):
+    the size of the posed dataset's images, the stages' full size."""
     min_registered_fraction: float = setting(0.9, ge=0, le=1)
     """Fail when fewer than this fraction of the images are registered."""
     seed: int = 0
@@ -328,6 +329,11 @@ class RenderSettings(Checked):
     trained model (the stereo pairs' right views, the nvs protocol) the way it was trained."""
 
     SECTION: ClassVar[str] = "train"
+    resolution: float = setting(1.0, gt=0)
+    """Image size factor for training (0.5 = half width and height)."""
+    max_side: int = setting(1600, ge=0)
+    """Cap on the training images' longest side in pixels (3DGS caps at 1.6k); 0 = none.
+    A model renders other stages' views (right views, held-out views) at this size too."""
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """RGB behind the Gaussians."""
     backend: str = setting("auto", choices=RENDER_BACKENDS)
@@ -336,6 +342,18 @@ class RenderSettings(Checked):
     """Opacity compensation for the 0.3 px² screen-space dilation (gsplat's antialiased mode).
     Without it, the dilation widens edge-on and sub-pixel Gaussians and the optimiser shrinks
     every surface by about a pixel footprint to match the photos' silhouettes."""
+
+    def scale(self, cam: Camera) -> float:
+        """The training size's factor of ``cam``: ``resolution``, less where the longest
+        side would exceed ``max_side``."""
+        if self.max_side:
+            return min(self.resolution, self.max_side / max(cam.width, cam.height))
+        return self.resolution
+
+    def sized(self, cam: Camera) -> Camera:
+        """``cam`` at the training size (:meth:`scale`)."""
+        factor = self.scale(cam)
+        return cam if factor == 1 else cam.scaled(factor)
 
 
 @dataclass
@@ -346,8 +364,6 @@ class TrainSettings(RenderSettings):
     SECTION: ClassVar[str] = "train"
     iterations: int = setting(30_000, ge=0)
     """Optimisation steps."""
-    resolution: float = setting(1.0, gt=0)
-    """Image size factor for training (0.5 = half width and height)."""
     sh_degree: int = setting(3, ge=0, le=3)
     """Spherical-harmonics degree of the colours."""
     sh_degree_interval: int = setting(1000, ge=1)
@@ -620,7 +636,12 @@ class MeshSettings(Checked):
     trunc_factor: float = setting(4.0, gt=0)
     """sdf_trunc = trunc_factor × voxel."""
     depth_max: float | None = setting(None, gt=0)
-    """Ignore depth beyond this (scene units); None = keep all."""
+    """Ignore depth beyond this (scene units); None = keep all (within ``region``)."""
+    region: float = setting(2.0, ge=0)
+    """The region of interest: the box of the sparse points' 5–95 % percentiles, scaled by
+    this about its centre. Only depths that land in it are fused (a sky or a far background
+    never becomes a wall), the voxel of an open scene comes from its size, and the mesh is
+    cropped to it. 0 = no region (fuse every depth)."""
     min_confidence: float = setting(0.5, ge=0, le=1)
     """Pixels whose confidence M^c is below this are not fused."""
     weight_threshold: float = setting(1.0, ge=0)

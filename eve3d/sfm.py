@@ -1,8 +1,11 @@
 """SfM stage (``eve3d sfm``): images → undistorted PINHOLE COLMAP model, with pycolmap.
 
-SIFT extraction (one shared camera by default), exhaustive or sequential matching,
-incremental mapping, undistortion. A dataset that already has a COLMAP model with
-distortion is only undistorted. Output: ``OUT/images`` and ``OUT/sparse/0``.
+The photos are imported first (``eve3d.photos``: upright, longest side at most
+``sfm.max_image_size``, unreadable files skipped with a warning), then SIFT extraction (one
+shared camera by default, one per size when the photos differ), exhaustive or sequential
+matching, incremental mapping, undistortion. A dataset that already has a COLMAP model with
+distortion is only undistorted (its pixels as stored, as the model was made). Output:
+``OUT/images``, ``OUT/sparse/0`` and the image pyramid ``OUT/images_{2,4,8}``.
 """
 from __future__ import annotations
 
@@ -10,9 +13,10 @@ import json
 import shutil
 from pathlib import Path
 
-from eve3d.fileio import atomic_dir, check_image, list_images
+from eve3d.fileio import atomic_dir
 from eve3d.io.colmap import import_pycolmap
 from eve3d.io.loader import METADATA, find_colmap_model
+from eve3d.photos import import_photos, scan_photos, write_pyramid
 from eve3d.scene import Eve3dError
 from eve3d.settings import SfmSettings
 
@@ -23,17 +27,17 @@ def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Pa
 
     s = settings or SfmSettings()
     image_dir = dataset / "images"
-    images = list_images(image_dir)
-    for path in images:
-        check_image(path)
+    photos = scan_photos(image_dir)
     with atomic_dir(out) as tmp:
         model = find_colmap_model(dataset)
         if model is None:
-            model = _reconstruct(image_dir, [p.name for p in images], tmp / "work", s)
+            model = _reconstruct(photos, tmp / "work", s)
+            image_dir = tmp / "work" / "images"
         pycolmap.undistort_images(str(tmp / "undistorted"), str(model), str(image_dir), output_type="COLMAP")
         (tmp / "sparse").mkdir()
         shutil.move(tmp / "undistorted" / "sparse", tmp / "sparse" / "0")
         shutil.move(tmp / "undistorted" / "images", tmp / "images")
+        write_pyramid(tmp / "images")
         for scratch in ("undistorted", "work"):
             shutil.rmtree(tmp / scratch, ignore_errors=True)
         if (dataset / METADATA).exists():
@@ -44,11 +48,14 @@ def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Pa
     return out
 
 
-def _reconstruct(image_dir: Path, names: list[str], work: Path, s: SfmSettings) -> Path:
-    """SIFT + matching + incremental mapping; returns the folder of the largest model."""
+def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
+    """Import + SIFT + matching + incremental mapping; returns the folder of the largest
+    model, whose images (``work/images``) are named as the photos' stems."""
     pycolmap = import_pycolmap()
 
     work.mkdir(parents=True)
+    image_dir = work / "by_size"
+    names = import_photos(photos, image_dir, s.max_image_size)
     pycolmap.set_random_seed(s.seed)
     db = work / "database.db"
     reader = pycolmap.ImageReaderOptions()
@@ -57,7 +64,7 @@ def _reconstruct(image_dir: Path, names: list[str], work: Path, s: SfmSettings) 
     extraction.max_image_size = s.max_image_size
     extraction.num_threads = s.threads
     pycolmap.extract_features(str(db), str(image_dir), image_names=names,
-                              camera_mode=pycolmap.CameraMode.SINGLE if s.single_camera else pycolmap.CameraMode.AUTO,
+                              camera_mode=pycolmap.CameraMode.PER_FOLDER if s.single_camera else pycolmap.CameraMode.AUTO,
                               reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
     match = pycolmap.match_exhaustive if s.matcher == "exhaustive" else pycolmap.match_sequential
     matching = pycolmap.FeatureMatchingOptions()
@@ -68,15 +75,22 @@ def _reconstruct(image_dir: Path, names: list[str], work: Path, s: SfmSettings) 
     options.num_threads = s.threads
     models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), options)
     if not models:
-        raise Eve3dError(f"{image_dir}: SfM could not register any image pair (too little texture or overlap?)")
+        raise Eve3dError(f"{photos[0].parent}: SfM could not register any image pair (too little texture or overlap?)")
     best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())
     registered = {img.name for img in best.images.values() if img.has_pose}
+    print(f"SfM registered {len(registered)} of {len(names)} images, {best.num_points3D()} points")
     if len(registered) < s.min_registered_fraction * len(names):
-        left_out = sorted(set(names) - registered)
+        left_out = sorted(p.name for p, n in zip(photos, names) if n not in registered)
         raise Eve3dError(
-            f"{image_dir}: SfM registered {len(registered)} of {len(names)} images "
+            f"{photos[0].parent}: SfM registered {len(registered)} of {len(names)} images "
             f"(below the required fraction {s.min_registered_fraction:g}); left out: {', '.join(left_out)}"
         )
+    # one flat folder, the images named as the photos' stems (the size folders only grouped the cameras)
+    (work / "images").mkdir()
+    for name in names:
+        (image_dir / name).rename(work / "images" / Path(name).name)
+    for img in best.images.values():
+        img.name = Path(img.name).name
     model_dir = work / "sparse" / str(best_id)
     best.write_binary(str(model_dir))
     return model_dir

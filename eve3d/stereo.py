@@ -20,6 +20,7 @@ from eve3d.fileio import atomic_dir, read_image, write_image
 from eve3d.layout import TONE_FILE  # written by the pretrain beside its PLY; read here
 from eve3d.maps import save_maps
 from eve3d.neighbours import select_neighbours
+from eve3d.photos import read_view
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.settings import SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings
 
@@ -132,11 +133,13 @@ def margin_camera(cam: Camera, margin: int) -> Camera:
 def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: BaselineSettings | None = None,
                        rendering: RenderSettings | None = None) -> dict:
     """``stereo_render``: the right view of every camera rendered by the pre-trained model
-    (``right/{view}.png``, rasterised as it was trained: ``rendering``), and ``pairs.json``: per view the baseline, the disparity range to
-    search (from the left view's rendered depth: 1st and 99th percentiles, with 25 % margins)
-    and ``margin``, the columns the right view extends to the left of the photo's frame so
-    that no left pixel's match falls outside it (a matcher's search range then costs no
-    columns of the photo)."""
+    at the size it was trained at (``right/{view}.png``, rasterised as it was trained:
+    ``rendering``), and ``pairs.json``: per view the ``scale`` of that size (the photo is
+    matched at it, so a model trained on smaller images is never asked for detail it does
+    not have), the baseline, the disparity range to search (from the left view's rendered
+    depth: 1st and 99th percentiles, with 25 % margins) and ``margin``, the columns the
+    right view extends to the left of the photo's frame so that no left pixel's match falls
+    outside it (a matcher's search range then costs no columns of the photo)."""
     import torch
 
     from eve3d.gaussians import GaussianModel
@@ -149,7 +152,9 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
     tone = json.loads(tone_path.read_text()) if tone_path.exists() else list(range(256))
     info = {"baseline": asdict(baseline), "model": str(model_path), "tone_curve": tone, "views": {}}
     with atomic_dir(out_dir) as tmp, torch.no_grad():
-        for cam in tqdm(scene.cameras, desc="rendering right views", unit="view"):
+        for full in tqdm(scene.cameras, desc="rendering right views", unit="view"):
+            scale = rendering.scale(full)
+            cam = rendering.sized(full)
             out = render_model(model, cam, rendering)
             depth = out.depth_expected[out.alpha > 0.5].numpy()
             near, median, far = (np.percentile(depth, [1, 50, 99]) if len(depth)
@@ -160,7 +165,7 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
             right = render_model(model, margin_camera(right_camera(cam, b), margin), rendering)
             write_image(tmp / "right" / f"{cam.view_id}.png",
                         (right.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
-            info["views"][cam.view_id] = {"baseline": b, "min_disparity": float(np.floor(d_min)),
+            info["views"][cam.view_id] = {"scale": scale, "baseline": b, "min_disparity": float(np.floor(d_min)),
                                           "max_disparity": float(d_max), "margin": margin}
         (tmp / PAIRS_FILE).write_text(json.dumps(info, indent=2))
     return info
@@ -232,10 +237,11 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
                   matcher: Callable[[np.ndarray, np.ndarray, tuple[float, float]], tuple[np.ndarray, np.ndarray]],
                   name: str, preview: bool = True, check: MatchCheck | None = None) -> None:
     """``stereo_depth`` for a disparity backend: ``matcher(left, right, (min, max))`` gives
-    the left disparity and its confidence on the pair (the photo, padded on the left by the
-    view's margin, and its right view); the confidence passes through ``check``; depth
-    Z = fx·B/d and normals from the depth are written for every view (``{view}.npz`` and PNG
-    previews)."""
+    the left disparity and its confidence on the pair (the photo at the pair's scale, padded
+    on the left by the view's margin, and its right view); the confidence passes through
+    ``check``; depth Z = fx·B/d and normals from the depth are written for every view
+    (``{view}.npz`` at the pair's size, and PNG previews; a stage reading them resamples them
+    to its own size)."""
     import torch
 
     from eve3d.losses import depth_to_normal
@@ -251,16 +257,23 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
     if tone.shape != (256,):
         raise Eve3dError(f"{pairs_path}: tone_curve must list 256 grey levels, got shape {tone.shape}")
     tone = tone.astype(np.uint8)
+    views = pairs.get("views", {})
+    for cam in scene.cameras:
+        if cam.view_id not in views:
+            raise Eve3dError(f"{pairs_path}: no right view for {cam.view_id}")
+        if not PAIR_KEYS <= views[cam.view_id].keys():
+            raise Eve3dError(f"{pairs_path}: view {cam.view_id} lacks "
+                             f"{', '.join(sorted(PAIR_KEYS - views[cam.view_id].keys()))}"
+                             " (written by an older eve3d); run `eve3d stereo-render` again")
+    # every view at the size its right view was rendered at
+    # (no scale: written before priors were matched at the model's size, i.e. at the dataset's)
+    scales = [float(views[c.view_id].get("scale", 1.0)) for c in scene.cameras]
+    cameras = [c.scaled(f) if f != 1 else c for c, f in zip(scene.cameras, scales)]
     # neighbours are mostly the views around: a few decoded photos serve several views
-    photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: tone[read_image(scene.cameras[j].image_path)])
+    photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: tone[read_view(cameras[j])])
     with atomic_dir(out_dir) as tmp:
-        for i, (cam, near) in enumerate(zip(tqdm(scene.cameras, desc=name, unit="view"), neighbours)):
-            pair = pairs.get("views", {}).get(cam.view_id)
-            if pair is None:
-                raise Eve3dError(f"{pairs_path}: no right view for {cam.view_id}")
-            if not PAIR_KEYS <= pair.keys():
-                raise Eve3dError(f"{pairs_path}: view {cam.view_id} lacks {', '.join(sorted(PAIR_KEYS - pair.keys()))}"
-                                 " (written by an older eve3d); run `eve3d stereo-render` again")
+        for i, (cam, near) in enumerate(zip(tqdm(cameras, desc=name, unit="view"), neighbours)):
+            pair = views[cam.view_id]
             margin, search = int(pair["margin"]), (float(pair["min_disparity"]), float(pair["max_disparity"]))
             left = photo(i)
             right_path = stereo_dir / "right" / f"{cam.view_id}.png"
@@ -273,7 +286,7 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
             confidence = checked_confidence(left, right, disp, confidence, search, margin, check)
             depth = np.where(disp > 0, cam.fx * float(pair["baseline"]) / np.maximum(disp, 1e-6), 0).astype(np.float32)
             if check.mv_ncc_threshold > 0 and len(near) >= check.mv_views:
-                others = [(scene.cameras[j], photo(j)) for j in near]
+                others = [(cameras[j], photo(j)) for j in near]
                 agree = (neighbour_ncc(cam, left, depth, others, check.ncc_window) >= check.mv_ncc_threshold).sum(0)
                 confidence = np.where(agree >= check.mv_views, confidence, 0).astype(np.float32)
             normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()

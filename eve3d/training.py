@@ -61,7 +61,7 @@ class Trainer:
                  tone: np.ndarray | None = None):
         self.s, self.name = settings, name
         self.device = pick_device(settings.device)
-        self.views = Views.load(scene, settings.resolution, settings.holdout, self.device, tone)
+        self.views = Views.load(scene, settings, settings.holdout, self.device, tone)
         self.state = TrainState(settings, scene.radius, len(self.views), self.device)
         self.checkpoint = Checkpoint(work_dir, settings, scene, name)
 

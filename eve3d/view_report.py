@@ -17,12 +17,17 @@ from eve3d.views import Views
 
 
 @torch.no_grad()
-def view_metrics(model: GaussianModel, views: Views, ids: list[int], rendering: RenderSettings) -> dict[str, float]:
-    """Mean PSNR and SSIM of the views ``ids`` rendered at full SH degree (empty without views)."""
+def view_metrics(model: GaussianModel, views: Views, ids: list[int], rendering: RenderSettings,
+                 side_by_side: Path | None = None) -> dict[str, float]:
+    """Mean PSNR and SSIM of the views ``ids`` rendered at full SH degree (empty without
+    views); with ``side_by_side``, each view's render | photo as ``{view}.png`` there."""
     ps, ss = [], []
     for i in ids:
         out = render_model(model, views[i].cam, rendering)
         rgb = out.rgb.clamp(0, 1)
+        if side_by_side is not None:
+            pair = (torch.cat([rgb, views[i].image], 1).cpu().numpy() * 255).round().astype(np.uint8)
+            write_image(side_by_side / f"{views[i].camera.view_id}.png", pair)
         ps.append(psnr(rgb, views[i].image))
         ss.append(float(ssim(rgb, views[i].image)))
     return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "views": len(ids)} if ids else {}

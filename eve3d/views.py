@@ -14,9 +14,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from eve3d.fileio import read_image
+from eve3d.photos import read_view
 from eve3d.render.projection import CameraTensors
 from eve3d.scene import Camera, Eve3dError, Scene
+from eve3d.settings import RenderSettings
 
 
 @dataclass
@@ -41,24 +42,19 @@ def pick_device(setting: str) -> torch.device:
     return torch.device("cuda" if want_cuda else "cpu")
 
 
-def load_views(scene: Scene, resolution: float, device: torch.device, tone: np.ndarray | None = None) -> list[View]:
-    """Every camera of ``scene`` with its image resized (area filter) to the training size,
-    its grey levels first mapped through ``tone`` ((256,) uint8) when given."""
-    import cv2
-
+def load_views(scene: Scene, rendering: RenderSettings, device: torch.device,
+               tone: np.ndarray | None = None) -> list[View]:
+    """Every camera of ``scene`` at the training size (``rendering.sized``) with its photo
+    at that size (``read_view``: from the image pyramid when there is one), its grey
+    levels mapped through ``tone`` ((256,) uint8) when given."""
     views = []
     for i, cam in enumerate(tqdm(scene.cameras, desc="loading images", unit="img", leave=False)):
-        small = cam.scaled(resolution) if resolution != 1 else cam
         if cam.image_path is None:
             raise Eve3dError(f"{scene.root}: view {cam.view_id} has no image")
-        rgb = read_image(cam.image_path)
-        if rgb.shape[:2] != (cam.height, cam.width):
-            raise Eve3dError(f"{cam.image_path}: image is {rgb.shape[1]}×{rgb.shape[0]}, camera says "
-                             f"{cam.width}×{cam.height}")
+        small = rendering.sized(cam)
+        rgb = read_view(small)
         if tone is not None:
             rgb = tone[rgb]
-        if (small.width, small.height) != (cam.width, cam.height):
-            rgb = cv2.resize(rgb, (small.width, small.height), interpolation=cv2.INTER_AREA)
         image = torch.from_numpy(rgb).to(device=device, dtype=torch.float32) / 255.0
         views.append(View(i, small, CameraTensors.from_camera(small, torch.float32, device), image))
     return views
@@ -79,11 +75,11 @@ class Views:
     test_ids: list[int]
 
     @classmethod
-    def load(cls, scene: Scene, resolution: float, holdout: int, device: torch.device,
+    def load(cls, scene: Scene, rendering: RenderSettings, holdout: int, device: torch.device,
              tone: np.ndarray | None = None) -> "Views":
         """:func:`load_views`, split by :func:`split_views`; refuses a split that leaves
         nothing to train on."""
-        views = load_views(scene, resolution, device, tone)
+        views = load_views(scene, rendering, device, tone)
         train_ids, test_ids = split_views(len(views), holdout)
         if not train_ids:
             raise Eve3dError(f"{scene.root}: no training views left after holding out every {holdout}th")

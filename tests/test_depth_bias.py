@@ -31,9 +31,15 @@ def test_depth_accuracy_signs_the_error(tmp_path):
     assert acc["median_rel_error"] == pytest.approx(0.01, rel=1e-4)
     assert acc["density"] == pytest.approx(24 / 27)
     assert acc["wrong_10"] == pytest.approx(4 / 20)
-    save_maps(tmp_path / "small" / "a.npz", preview=False, depth=exact[::2], confidence=confidence[::2])
-    with pytest.raises(Eve3dError, match="different sizes"):
-        depth_accuracy(tmp_path / "small", tmp_path / "exact")
+    save_maps(tmp_path / "squeezed" / "a.npz", preview=False, depth=exact[::2], confidence=confidence[::2])
+    with pytest.raises(Eve3dError, match="maps of different shapes"):
+        depth_accuracy(tmp_path / "squeezed", tmp_path / "exact")
+    # a map at half the size (priors matched at the pretrain's size) is scored at the exact depth's size
+    half = depth[::2, ::2]
+    save_maps(tmp_path / "half" / "a.npz", preview=False, depth=half, confidence=confidence[::2, ::2])
+    small = depth_accuracy(tmp_path / "half", tmp_path / "exact")
+    # nearest resampling moves the unconfident columns' edge by up to a pixel
+    assert small["median_signed_error"] == pytest.approx(-0.01, rel=1e-4) and small["density"] == pytest.approx(24 / 27, abs=0.01)
     save_maps(tmp_path / "no_depth" / "a.npz", preview=False, confidence=confidence)
     with pytest.raises(Eve3dError, match="no 'depth' array"):
         depth_accuracy(tmp_path / "no_depth", tmp_path / "exact")

@@ -230,8 +230,11 @@ def test_protocol_defaults_and_requirements_are_named(tmp_path, object_dataset):
     assert scene_protocol("a", {"path": str(object_dataset), "protocol": "nvs"}).name == "nvs"
     with pytest.raises(Eve3dError, match=r"scenes.a.protocol: unknown protocol 'chamfer'"):
         scene_protocol("a", {"path": str(object_dataset), "protocol": "chamfer"})
+    # no ground truth of the format's protocol: held-out views; a protocol named without it: refused
+    assert scene_protocol("b", {"path": str(object_dataset)}).name == "nvs"
+    assert scene_protocol("b", {"path": str(object_dataset), "gt_mesh": "gt.ply"}).name == "synthetic"
     with pytest.raises(Eve3dError, match=r"scenes.b \(protocol synthetic\): give gt_mesh"):
-        scene_protocol("b", {"path": str(object_dataset)})
+        scene_protocol("b", {"path": str(object_dataset), "protocol": "synthetic"})
     with pytest.raises(Eve3dError, match=r"scenes.c \(protocol dtu\): .* is a colmap dataset, the protocol scores dtu"):
         scene_protocol("c", {"path": str(object_dataset), "protocol": "dtu"})
     with pytest.raises(Eve3dError, match="the protocol scores tnt datasets"):

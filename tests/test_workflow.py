@@ -41,15 +41,15 @@ def assert_mesh(path):
     return mesh
 
 
-def assert_maps(folder, scene, previews: bool = True) -> None:
+def assert_maps(folder, scene, previews: bool = True, scale: float = 1.0) -> None:
     """Per-view maps (``{view}.npz``) for every camera of ``scene``: depth and confidence of
-    the camera's shape, normals (H, W, 3), all finite; depth ≥ 0, confidence in [0, 1],
+    the camera's shape (at ``scale``), normals (H, W, 3), all finite; depth ≥ 0, confidence in [0, 1],
     some confident pixels, with a positive depth on every confident pixel; the PNG preview
     of the depth beside each (``previews``)."""
     from eve3d.maps import load_maps
 
     assert sorted(f.stem for f in folder.glob("*.npz")) == sorted(c.view_id for c in scene.cameras), folder
-    for cam in scene.cameras:
+    for cam in (c.scaled(scale) if scale != 1 else c for c in scene.cameras):
         m = load_maps(folder / f"{cam.view_id}.npz")
         assert {"depth", "confidence", "normal"} <= set(m), (folder, cam.view_id, set(m))
         depth, conf, normal = m["depth"], m["confidence"], m["normal"]
@@ -180,9 +180,12 @@ def test_tiny_training_run(tmp_path):
         pair = pairs["views"][cam.view_id]
         assert pair["baseline"] > 0 and 0 <= pair["min_disparity"] < pair["max_disparity"] and pair["margin"] >= 0
         # the right view extends ``margin`` columns to the left of the photo's frame
-        assert Image.open(results / f"tiny/stereo/right/{cam.view_id}.png").size == (cam.width + pair["margin"],
-                                                                                    cam.height)
-    assert_maps(results / "tiny/priors/sgbm", scene)  # stereo_depth
+        # at the size the pretrain trained at (the preset's 3/4)
+        small = cam.scaled(pair["scale"])
+        assert pair["scale"] == 0.75 and (small.width, small.height) == (120, 90)
+        assert Image.open(results / f"tiny/stereo/right/{cam.view_id}.png").size == (small.width + pair["margin"],
+                                                                                    small.height)
+    assert_maps(results / "tiny/priors/sgbm", scene, scale=0.75)  # stereo_depth, at the pretrain's size
     assert_maps(results / "tiny/priors/oracle", scene)
     for name, method in (("tiny", "3dgs"), ("tiny", "pgsr"), ("tiny", "eve3d"), ("tiny-nvs", "3dgs")):  # joint
         out = results / name / method
@@ -266,8 +269,16 @@ def test_oracle_scores_near_perfectly_on_scenes_brought_by_a_user(tmp_path):
     assert room["tau"] > 5 * 0.005 * load_scene(tmp_path / "inside-room").radius  # not tied to the camera radius
 
 
-def test_scene_without_ground_truth_is_refused_before_any_job(tmp_path, object_dataset):
-    cfg = write_config(tmp_path, scenes={"mine": {"path": str(object_dataset)}})
+def test_scene_without_ground_truth_is_scored_on_held_out_views(tmp_path, object_dataset):
+    """No ground truth given: the nvs protocol, and every trained method meshed all the same;
+    a geometric protocol named without its ground truth is refused, naming the key."""
+    cfg = write_config(tmp_path, methods=["oracle", "stereo-tsdf", "pgsr"], scenes={"mine": {"path": str(object_dataset)}})
+    r = snakemake("-n", "-p", "--configfile", str(cfg), "--replace-workflow-config")
+    out = r.stdout + r.stderr
+    assert r.returncode == 0, out[-3000:]
+    assert f"--protocol nvs --model {tmp_path}/results/mine/pgsr/point_cloud.ply" in out
+    assert f"--out {tmp_path}/results/mine/pgsr/mesh.ply" in out and "mine/oracle" not in out
+    cfg = write_config(tmp_path, scenes={"mine": {"path": str(object_dataset), "protocol": "synthetic"}})
     r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode != 0
     assert "scenes.mine (protocol synthetic): give gt_mesh" in r.stdout + r.stderr

@@ -3,7 +3,8 @@
 One registry, :data:`PROTOCOLS`, names every protocol; the CLI, the config check and the
 workflow read names and needs from it. A scene's protocol is its ``protocol:`` key, or the
 default of its dataset format (:data:`DEFAULT_PROTOCOL`), never guessed from which other
-keys happen to be present. One module per protocol:
+keys happen to be present, except that a scene without any ground truth of its format's
+protocol is scored on held-out views (:data:`WITHOUT_GT`). One module per protocol:
 
 * ``synthetic`` (:mod:`.synthetic`): a scene with a known GT mesh; completeness over the GT
   surface the cameras see, exact point-to-triangle distances.
@@ -14,6 +15,7 @@ keys happen to be present. One module per protocol:
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -89,12 +91,23 @@ GIVEN_TAU = "given (evaluate.tau)"
 """``tau_rule`` of a τ the user set."""
 
 DEFAULT_PROTOCOL: dict[str, str] = {"colmap": "synthetic", "dtu": "dtu", "tnt": "tnt"}
-"""Protocol of each dataset format (``eve3d.io.loader.dataset_format``) unless a scene names one."""
+"""Protocol of each dataset format (``eve3d.io.loader.dataset_format``) when its ground truth
+is given and a scene names none."""
+WITHOUT_GT = "nvs"
+"""The default protocol of a scene whose format's protocol has none of its ground truth
+(a folder of photos): held-out views need nothing but the photos."""
 
 
-def protocol_for(name: str | None, dataset_format: str, where: str = "protocol") -> Protocol:
-    """The protocol called ``name``, or the default of ``dataset_format`` when None."""
-    name = name or DEFAULT_PROTOCOL[dataset_format]
+def protocol_for(name: str | None, dataset_format: str, where: str = "protocol",
+                 given: Callable[[str], bool] = lambda key: True) -> Protocol:
+    """The protocol called ``name``, or when None the default of ``dataset_format`` if
+    ``given`` says any of its ground-truth inputs (a config key of ``config_inputs``) is
+    given, else :data:`WITHOUT_GT` (a protocol with no such inputs counts as given: T&T's
+    files lie in the dataset)."""
+    if name is None:
+        default = PROTOCOLS[DEFAULT_PROTOCOL[dataset_format]]
+        keys = default.config_inputs.values()
+        name = default.name if not keys or any(map(given, keys)) else WITHOUT_GT
     if name not in PROTOCOLS:
         raise Eve3dError(f"{where}: unknown protocol {name!r}; choose one of {', '.join(PROTOCOLS)}")
     return PROTOCOLS[name]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.maps import load_maps
+from eve3d.maps import depth_at, load_maps, same_aspect
 from eve3d.settings import MeshSettings
 from eve3d.scene import Eve3dError
 
@@ -37,10 +37,13 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
         for file, m in ((ref_path, ref), (path, maps)):
             if "depth" not in m:
                 raise Eve3dError(f"{file}: no 'depth' array (it has {', '.join(m) or 'none'})")
-        confidence = maps.get("confidence", np.ones_like(maps["depth"]))
-        if maps["depth"].shape != ref["depth"].shape:
+        h, w = ref["depth"].shape
+        if not same_aspect(maps["depth"].shape, w, h):
             raise Eve3dError(f"{path}: depth is {maps['depth'].shape[::-1]}, the exact depth "
-                             f"{ref['depth'].shape[::-1]}: maps of different sizes cannot be compared")
+                             f"{ref['depth'].shape[::-1]}: maps of different shapes cannot be compared")
+        # a map made at another size (priors at the pretrain's) is scored at the exact depth's
+        maps = {k: depth_at(v, w, h) for k, v in maps.items()}
+        confidence = maps.get("confidence", np.ones_like(maps["depth"]))
         has = ref.get("confidence", ref["depth"]) > 0
         use = has & (confidence >= min_confidence) & (maps["depth"] > 0)
         errors.append((maps["depth"][use] - ref["depth"][use]) / ref["depth"][use])
@@ -50,3 +53,44 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
     return {"data": label or str(maps_dir), "median_signed_error": stat(np.median),
             "median_rel_error": stat(lambda e: np.median(np.abs(e))), "density": confident / max(known, 1),
             "wrong_5": stat(lambda e: (np.abs(e) > 0.05).mean()), "wrong_10": stat(lambda e: (np.abs(e) > 0.10).mean())}
+
+
+def prior_agreement(scene, maps_dir: Path, neighbours: int = 2, stride: int = 4,
+                    min_confidence: float = MeshSettings.min_confidence) -> dict:
+    """Without ground truth: how far neighbouring views' depth maps agree. Every
+    ``stride``-th confident pixel of a view is back-projected and projected into each of its
+    ``neighbours`` (``eve3d.neighbours``); where it lands on a confident pixel of the
+    neighbour, the relative difference |z − D_n| / D_n between its depth there and the
+    neighbour's map counts. Returns the median of those differences, the share over 5 %,
+    the density (confident / all pixels) and how many pixels were compared. A surface seen
+    by both views agrees; a wrong depth in either does not (occlusions count against too)."""
+    from eve3d.neighbours import select_neighbours
+
+    maps_dir = Path(maps_dir)
+    views = []
+    for cam in scene.cameras:
+        path = maps_dir / f"{cam.view_id}.npz"
+        if not path.exists():
+            raise Eve3dError(f"{path}: missing (the scene has view {cam.view_id})")
+        m = load_maps(path)
+        depth = m["depth"]
+        if not same_aspect(depth.shape, cam.width, cam.height):
+            raise Eve3dError(f"{path}: depth is {depth.shape[1]}×{depth.shape[0]}, view is {cam.width}×{cam.height}")
+        depth = np.where(m.get("confidence", np.ones_like(depth)) >= min_confidence, depth, 0)
+        views.append((cam if depth.shape[1] == cam.width else cam.scaled(depth.shape[1] / cam.width), depth))
+    diffs, confident, pixels = [], 0, 0
+    for (cam, depth), near in zip(views, select_neighbours(scene, neighbours)):
+        confident, pixels = confident + int((depth > 0).sum()), pixels + depth.size
+        points = cam.backproject(depth)[::stride, ::stride][depth[::stride, ::stride] > 0]
+        for j in near:
+            other, their = views[j]
+            uv, z = other.project(points)
+            inside = other.in_image(uv, z)
+            px = np.floor(uv[inside]).astype(int)
+            d = their[px[:, 1], px[:, 0]]
+            ok = d > 0
+            diffs.append(np.abs(z[inside][ok] - d[ok]) / d[ok])
+    diff = np.concatenate(diffs) if diffs else np.zeros(0)
+    return {"data": str(maps_dir), "density": confident / max(pixels, 1),
+            "median_disagreement": float(np.median(diff)) if len(diff) else None,
+            "disagree_5": float((diff > 0.05).mean()) if len(diff) else None, "compared": int(len(diff))}

@@ -4,17 +4,18 @@ Every 8th view (index % 8 == 0) is held out of training (the workflow sets
 ``joint.holdout`` for scenes with this protocol); the trained Gaussians are rendered from
 those views at the training resolution, with the training's rasterisation settings (read
 from ``train_metrics.json`` beside the model), and scored by PSNR and SSIM against the
-photos (resized with an area filter, as in training).
+photos (resized with an area filter, as in training). Each held-out view's render | photo is
+written as ``held_out/{view}.png`` beside the metrics.
 """
 from __future__ import annotations
 
 import json
 
 from eve3d.evaluate import PROTOCOLS, EvalInputs
-from eve3d.layout import TRAIN_METRICS_FILE
+from eve3d.layout import HELD_OUT_DIR, TRAIN_METRICS_FILE
 from eve3d.scene import Eve3dError
 
-RENDER_KEYS = ("resolution", "background", "antialiased", "backend", "device")
+RENDER_KEYS = ("resolution", "max_side", "background", "antialiased", "backend", "device")
 """Training settings that change what a view renders to."""
 
 
@@ -39,7 +40,7 @@ def evaluate_views(inputs: EvalInputs) -> dict:
     render = {k: tuple(v) if isinstance(v, list) else v for k, v in trained.items() if k in RENDER_KEYS}
     settings = TrainSettings(holdout=holdout, **render)
     device = pick_device(settings.device)
-    views = Views.load(inputs.scene, settings.resolution, holdout, device)
+    views = Views.load(inputs.scene, settings, holdout, device)
     model = GaussianModel.load_ply(model_path).to(device)
-    held = view_metrics(model, views, views.test_ids, settings)
-    return {**held, "resolution": settings.resolution, "holdout": holdout}
+    held = view_metrics(model, views, views.test_ids, settings, inputs.out.parent / HELD_OUT_DIR)
+    return {**held, "resolution": settings.resolution, "max_side": settings.max_side, "holdout": holdout}

@@ -15,20 +15,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eve3d.maps import load_maps, preview_image
+from eve3d.maps import load_maps, preview_image, same_aspect
 from eve3d.scene import Camera, Eve3dError
 
 
 @dataclass
 class Priors:
-    """(V, H, W) maps at the training resolution, V = every view of the scene."""
+    """Per view of the scene, maps (H, W) at its training size (views may differ in size:
+    portrait and landscape photos)."""
 
-    depth: torch.Tensor
+    depth: list[torch.Tensor]
     """D*, camera z; 0 where the stereo stage gave no depth."""
-    confidence: torch.Tensor
+    confidence: list[torch.Tensor]
     """M^c (bool), updated during training by the multi-view check."""
-    normal: torch.Tensor
-    """(V, H, W, 3) N_prior of D* (camera space, facing the camera; 0 where undefined)."""
+    normal: list[torch.Tensor]
+    """(H, W, 3) N_prior of D* (camera space, facing the camera; 0 where undefined)."""
     digest: str
     """SHA-256 of the prior files: a checkpoint trained on other priors is not resumed."""
 
@@ -52,7 +53,7 @@ def resample_prior(depth: np.ndarray, confidence: np.ndarray, width: int, height
 
 def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], device: torch.device,
                 normal_span: int = 1) -> Priors:
-    """The priors of every camera (``{folder}/{view}.npz``, at the dataset's size) resampled
+    """The priors of every camera (``{folder}/{view}.npz``, at any scale of its size) resampled
     to its training camera's size, with normals from the resampled depth (finite
     differences over ±``normal_span`` pixels). A missing, mis-sized or all-invalid map is an
     error naming the file."""
@@ -74,9 +75,9 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
         if "depth" not in maps or "confidence" not in maps:
             raise Eve3dError(f"{path}: a prior needs 'depth' and 'confidence' maps, it has {', '.join(maps)}")
         depth, conf = maps["depth"], maps["confidence"]
-        if depth.shape != (full.height, full.width) or conf.shape != depth.shape:
+        if conf.shape != depth.shape or not same_aspect(depth.shape, full.width, full.height):
             raise Eve3dError(f"{path}: maps are {depth.shape[1]}×{depth.shape[0]}, view {cam.view_id} is "
-                             f"{full.width}×{full.height}")
+                             f"{full.width}×{full.height} (or a scale of it)")
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0)
         depth, conf = resample_prior(depth, conf, cam.width, cam.height)
         if not ((depth > 0) & (conf > 0.5)).any():
@@ -85,8 +86,8 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
         depths.append(d)
         confs.append(torch.from_numpy(conf > 0.5))
         normals.append(depth_to_normal(d, CameraTensors.from_camera(cam), normal_span))
-    return Priors(torch.stack(depths).to(device), torch.stack(confs).to(device), torch.stack(normals).to(device),
-                  digest.hexdigest()[:16])
+    on = lambda maps: [m.to(device) for m in maps]  # noqa: E731
+    return Priors(on(depths), on(confs), on(normals), digest.hexdigest()[:16])
 
 
 def filled_log_depth(depth: torch.Tensor) -> torch.Tensor:

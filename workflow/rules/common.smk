@@ -180,6 +180,11 @@ def metrics_files():
     return [LAYOUT.metrics(s, m) for s in SCENES for m in scene_methods(s)]
 
 
+def mesh_files():
+    """Every method's mesh, whatever the protocol scores (nvs scores the trained models)."""
+    return [LAYOUT.mesh(s, m) for s in SCENES for m in scene_methods(s)]
+
+
 def pretrain_metrics():
     """The pretrain stage's records (held-out view metrics), for scenes where a method
     trains or uses stereo priors (rendered by the pretrained model)."""

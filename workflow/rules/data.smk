@@ -30,6 +30,8 @@ rule sfm:
         config=lambda wc: job_config("sfm"),
     log:
         LAYOUT.log("{scene}", "sfm"),
+    benchmark:
+        LAYOUT.benchmark("{scene}", "sfm"),
     threads: lambda wc: config["sfm"]["threads"] if config["sfm"]["threads"] > 0 else workflow.cores
     conda:
         CONDA_ENV
