@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.fileio import atomic_path, write_image
-from eve3d.scene import Eve3dError
+from eve3d.scene import Camera, Eve3dError
 
 
 def save_maps(path: Path, preview: bool = True, **maps: np.ndarray) -> None:
@@ -33,6 +33,15 @@ def same_aspect(shape: tuple[int, ...], width: int, height: int) -> bool:
     (to a pixel of rounding), so it can be resampled to that size."""
     h, w = shape[:2]
     return abs(h * width / w - height) <= 1 + width / w
+
+
+def map_camera(cam: Camera, shape: tuple[int, ...], path: Path) -> Camera:
+    """``cam`` at the size of a map of ``shape`` (H, W, ...) read from ``path``; an error naming
+    the file when the map is not the view at any scale."""
+    h, w = shape[:2]
+    if not same_aspect(shape, cam.width, cam.height):
+        raise Eve3dError(f"{path}: depth is {w}×{h}, view is {cam.width}×{cam.height} (or a scale of it)")
+    return cam if w == cam.width else cam.scaled(w / cam.width)
 
 
 def depth_at(depth: np.ndarray, width: int, height: int) -> np.ndarray:

@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from eve3d.fileio import atomic_path
 from eve3d.photos import read_view
-from eve3d.maps import load_maps, same_aspect
+from eve3d.maps import load_maps, map_camera
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.settings import MeshSettings
 
@@ -29,13 +29,10 @@ def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
             raise Eve3dError(f"{path}: depth map missing for view {cam.view_id}")
         maps = load_maps(path)
         depth = maps["depth"].astype(np.float32)
-        if not same_aspect(depth.shape, cam.width, cam.height):
-            raise Eve3dError(f"{path}: depth is {depth.shape[1]}×{depth.shape[0]}, view is {cam.width}×{cam.height} "
-                             f"(or a scale of it)")
+        small = map_camera(cam, depth.shape, path)  # fused at the map's size (priors: the pretrain's)
         if "confidence" in maps:
             depth = np.where(maps["confidence"] >= min_confidence, depth, 0).astype(np.float32)
-        # fused at the map's own size (priors are matched at the size the model was trained at)
-        yield (cam if depth.shape[1] == cam.width else cam.scaled(depth.shape[1] / cam.width)), depth
+        yield small, depth
 
 
 def in_region(cam: Camera, depth: np.ndarray, region: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -56,7 +53,7 @@ def _touched(cam: Camera, depth: np.ndarray, stride: int = 2) -> np.ndarray:
 
 def fused_depths(scene: Scene, depth_dir: Path, s: MeshSettings):
     """:func:`view_depths`, only the depths within ``depth_max`` and the region of interest."""
-    region = scene.region(s.region) if s.region else None
+    region = scene.region(s.region)
     for cam, depth in view_depths(scene, depth_dir, s.min_confidence):
         if s.depth_max:
             depth = np.where(depth <= s.depth_max, depth, 0)
@@ -118,7 +115,7 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
                       trunc_voxel_multiplier=s.trunc_factor)
     mesh = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold).to_legacy()
-    region = scene.region(s.region) if s.region else None
+    region = scene.region(s.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths
         mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(*region))
     if len(mesh.triangles) == 0:

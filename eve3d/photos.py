@@ -128,6 +128,7 @@ def read_view(cam: Camera) -> np.ndarray:
     dataset's (``Camera.scaled``) is read from the smallest cached pyramid level that is at
     least its size, when there is one, and resized with an area filter."""
     import cv2
+    from PIL import Image
 
     if cam.image_path is None:
         raise Eve3dError(f"view {cam.view_id} has no image")
@@ -135,9 +136,7 @@ def read_view(cam: Camera) -> np.ndarray:
     for k in reversed(PYRAMID_LEVELS):
         level = pyramid_dir(source.parent, k) / f"{source.stem}.png"
         if level.is_file():
-            from PIL import Image
-
-            with Image.open(level) as im:
+            with Image.open(level) as im:  # the header only
                 w, h = im.size
             if w >= cam.width and h >= cam.height:
                 source = level

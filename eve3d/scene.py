@@ -169,9 +169,10 @@ class Scene:
 
     def region(self, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
         """The region of interest, what the cameras look at: :meth:`sparse_box` scaled by
-        ``scale`` about its centre; None without sparse points."""
+        ``scale`` about its centre; None without sparse points or when ``scale`` is 0 (no
+        region)."""
         box = self.sparse_box()
-        if box is None:
+        if box is None or not scale:
             return None
         centre, half = (box[0] + box[1]) / 2, (box[1] - box[0]) / 2 * scale
         return centre - half, centre + half

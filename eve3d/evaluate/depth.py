@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.maps import depth_at, load_maps, same_aspect
+from eve3d.maps import depth_at, load_maps, map_camera, same_aspect
 from eve3d.settings import MeshSettings
 from eve3d.scene import Eve3dError
 
@@ -73,11 +73,8 @@ def prior_agreement(scene, maps_dir: Path, neighbours: int = 2, stride: int = 4,
         if not path.exists():
             raise Eve3dError(f"{path}: missing (the scene has view {cam.view_id})")
         m = load_maps(path)
-        depth = m["depth"]
-        if not same_aspect(depth.shape, cam.width, cam.height):
-            raise Eve3dError(f"{path}: depth is {depth.shape[1]}×{depth.shape[0]}, view is {cam.width}×{cam.height}")
-        depth = np.where(m.get("confidence", np.ones_like(depth)) >= min_confidence, depth, 0)
-        views.append((cam if depth.shape[1] == cam.width else cam.scaled(depth.shape[1] / cam.width), depth))
+        depth = np.where(m.get("confidence", np.ones_like(m["depth"])) >= min_confidence, m["depth"], 0)
+        views.append((map_camera(cam, depth.shape, path), depth))
     diffs, confident, pixels = [], 0, 0
     for (cam, depth), near in zip(views, select_neighbours(scene, neighbours)):
         confident, pixels = confident + int((depth > 0).sum()), pixels + depth.size
