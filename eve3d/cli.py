@@ -189,7 +189,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     print(format_table([metrics]))
 
 
-SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "accuracy", "completeness", "chamfer",
+SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "points", "accuracy", "completeness", "chamfer",
                    "precision", "recall", "fscore", "depth_signed_error", "depth_error", "psnr", "ssim")
 
 

@@ -2,6 +2,7 @@
 import json
 
 import numpy as np
+import scipy
 import pytest
 from scipy.io import savemat
 
@@ -215,6 +216,9 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     o3d.io.write_triangle_mesh(str(tmp_path / "seen.ply"), seen)
     exact = score(tmp_path / "seen.ply")
     assert exact["protocol"] == "dtu" and exact["chamfer"] < 0.5 and exact["n_recon"] > 10_000
+    # every score says which evaluator and which library versions produced it
+    assert exact["evaluator"] == "eve3d.evaluate.dtu.evaluate_dtu"
+    assert exact["versions"]["open3d"] == o3d.__version__ and exact["versions"]["scipy"] == scipy.__version__
     shifted = seen.translate([0, 0, 0.02])  # 1 mm in DTU units
     o3d.io.write_triangle_mesh(str(tmp_path / "shifted.ply"), shifted)
     moved = score(tmp_path / "shifted.ply")

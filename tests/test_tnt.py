@@ -235,8 +235,11 @@ def test_alignment_recovers_the_frame(tnt_layout, tmp_path):
 
     # ICP finishes it. With the toolbox's stopping rule (see noisy_reconstruction) how far it
     # gets depends on the start: over 16 camera-noise draws the largest vertex error had a
-    # median of 0.06τ (0.2τ at worst, from a 10τ start); this draw ends at 0.04τ.
-    m = evaluate_tnt(EvalInputs(scene=scene, reconstruction=mesh_path, out=tmp_path / "metrics.json"))
+    # median of 0.06τ (0.2τ at worst, from a 10τ start); this draw ends at 0.04τ. Those
+    # figures were measured with the vertices and area samples (the `sampled` points), so
+    # this test scores those: vertices only end this draw at 0.21τ (fewer points to fit).
+    m = evaluate_tnt(EvalInputs(scene=scene, reconstruction=mesh_path, out=tmp_path / "metrics.json",
+                                settings=EvalSettings(tnt_points="sampled")))
     error = np.linalg.norm(apply(np.array(m["transformation"]), v_ours) - v_gt, axis=1).max()
     assert error < tau / 10 and error < rough_error / 3, (error, rough_error)
     assert (m["tau"], m["tau_rule"]) == (tau, "T&T toolbox table (Ignatius)")
@@ -250,6 +253,41 @@ def test_alignment_recovers_the_frame(tnt_layout, tmp_path):
         assert colours.min() >= 0 and colours.max() <= 1
         assert np.mean((colours[:, 0] == 1) & (colours[:, 1] > 0.75)) > 0.9   # mostly yellow-white: d < τ
     assert not list(tmp_path.glob(".*"))   # no temporary files left
+
+
+def test_official_mode_scores_the_vertices_of_a_coarse_mesh(tnt_layout, tmp_path):
+    """By default a mesh is scored as the toolbox scores it: its PLY read as a point cloud,
+    i.e. its vertices. On a mesh whose vertices lie about τ apart that misses GT points
+    between them (lower recall); the `sampled` mode adds area samples and differs."""
+    import open3d as o3d
+
+    root, mesh_path, _, _ = tnt_layout
+    scene, tau = load_scene(root), TAU["Ignatius"]
+    fine = o3d.io.read_triangle_mesh(str(mesh_path))
+    coarse = fine.simplify_vertex_clustering(voxel_size=0.75 * tau * 1.05)   # our frame is 1.05× the GT's
+    corners = np.asarray(coarse.vertices)[np.asarray(coarse.triangles)]
+    spacing = np.median(np.linalg.norm(corners[:, 0] - corners[:, 1], axis=1)) / 1.05
+    assert 0.7 * tau < spacing < 1.5 * tau
+    path = tmp_path / "coarse.ply"
+    o3d.io.write_triangle_mesh(str(path), coarse)
+
+    official = evaluate_tnt(EvalInputs(scene=scene, reconstruction=path, out=tmp_path / "metrics.json"))
+    assert official["points"] == "vertices"
+    # The toolbox's own reading, aligned by the transform the evaluation found: crop, τ/2 voxels.
+    toolbox = o3d.io.read_point_cloud(str(path)).transform(np.array(official["transformation"]))
+    toolbox = read_crop(root / "Ignatius.json").crop_point_cloud(toolbox).voxel_down_sample(tau / 2)
+    gt = o3d.io.read_point_cloud(str(root / "Ignatius.ply"))
+    gt = read_crop(root / "Ignatius.json").crop_point_cloud(gt).voxel_down_sample(tau / 2)
+    ours, theirs = np.asarray(toolbox.points), np.asarray(gt.points)
+    assert official["n_recon"] == len(ours)
+    assert official["precision"] == pytest.approx(np.mean(brute_nearest(ours, theirs) < tau), abs=1e-9)
+    assert official["recall"] == pytest.approx(np.mean(brute_nearest(theirs, ours) < tau), abs=1e-9)
+
+    sampled = evaluate_tnt(EvalInputs(scene=scene, reconstruction=path, out=tmp_path / "metrics.json",
+                                      settings=EvalSettings(tnt_points="sampled")))
+    assert sampled["points"] == "sampled" and sampled["n_recon"] > 3 * official["n_recon"]
+    # measured: recall 0.79 (vertices) against 0.999 (sampled), F 0.87 against 0.98
+    assert sampled["recall"] > official["recall"] + 0.05 and sampled["fscore"] > official["fscore"] + 0.02
 
 
 def test_log_with_other_cameras_is_refused(tmp_path):

@@ -72,7 +72,21 @@ class Protocol:
                              f"dataset, this one is {fmt}")
         module, function = self.entry.split(":")
         metrics = getattr(importlib.import_module(f"eve3d.evaluate.{module}"), function)(inputs)
-        return {"protocol": self.name, **metrics}
+        return {"protocol": self.name, **metrics, "evaluator": f"eve3d.evaluate.{module}.{function}",
+                "versions": library_versions()}
+
+
+SCORING_LIBRARIES = ("eve3d", "open3d", "numpy", "scipy", "torch")
+"""Libraries whose versions a score records: published T&T figures differ between the
+toolbox on open3d 0.9 and later ports."""
+
+
+def library_versions() -> dict[str, str]:
+    """The versions of :data:`SCORING_LIBRARIES` that this process has loaded (those that
+    took part in a score)."""
+    import sys
+
+    return {name: sys.modules[name].__version__ for name in SCORING_LIBRARIES if name in sys.modules}
 
 
 PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (

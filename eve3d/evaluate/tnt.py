@@ -12,8 +12,9 @@ for open3d 0.9), ported to current open3d (``o3d.pipelines.registration``).
    share of GT points closer than τ to ours, F = their harmonic mean. ``precision.ply`` and
    ``recall.ply`` beside ``metrics.json`` colour those points by distance (``hot_r``, 0..3τ).
 
-The reconstruction is a mesh; its points are its vertices (as the toolbox reads a mesh PLY)
-plus uniform area samples. τ is the toolbox's per-scene table unless ``evaluate.tau`` is
+The reconstruction is a mesh; its points are its vertices, as the toolbox reads a mesh PLY
+(``evaluate.tnt_points: vertices``), or its vertices plus uniform area samples (``sampled``):
+on a coarse mesh (vertex spacing above τ/2) the two differ. τ is the toolbox's per-scene table unless ``evaluate.tau`` is
 given. Not supported: the toolbox's >1600-frame branch (a log of every video frame thinned
 by a mapping file); the reconstruction must have exactly the cameras of the log.
 """
@@ -213,13 +214,15 @@ def write_distance_colours(path: Path, pcd, distances: np.ndarray, tau: float) -
             raise Eve3dError(f"{path}: could not write the point cloud")
 
 
-def reconstruction_points(mesh, tau: float, samples: int, rng: np.random.Generator) -> np.ndarray:
-    """The mesh's vertices plus up to ``samples`` uniform area samples, about one per
-    (τ/2)² (τ in the mesh's units)."""
+def reconstruction_points(mesh, mode: str, tau: float, samples: int, rng: np.random.Generator) -> np.ndarray:
+    """The points of the mesh that are scored (``evaluate.tnt_points``): its vertices, and in
+    ``sampled`` mode up to ``samples`` uniform area samples, about one per (τ/2)² (τ in the
+    mesh's units)."""
     from eve3d.surface import sample_surface
 
     vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-    # The toolbox scores a mesh by its vertices; area samples so a coarse mesh isn't charged for its vertex spacing.
+    if mode == "vertices":
+        return vertices
     count = int(min(samples, mesh.get_surface_area() / (tau / 2) ** 2))
     return np.vstack([vertices, sample_surface(vertices, triangles, count, rng)]) if count > 0 else vertices
 
@@ -251,7 +254,8 @@ def evaluate_tnt(inputs: EvalInputs) -> dict:
     target = reference @ gt_trans[:3, :3].T + gt_trans[:3, 3]
     residual = centres @ rough[:3, :3].T + rough[:3, 3] - target
     # τ in our units: the similarity's scale carries GT units into ours for the sampling density.
-    points = reconstruction_points(mesh, tau / similarity_scale(rough), settings.samples, np.random.default_rng(0))
+    points = reconstruction_points(mesh, settings.tnt_points, tau / similarity_scale(rough), settings.samples,
+                                   np.random.default_rng(0))
     recon_pcd = _cloud(points)
 
     transform = refine_alignment(recon_pcd, gt_pcd, rough, volume, tau)
@@ -259,8 +263,8 @@ def evaluate_tnt(inputs: EvalInputs) -> dict:
     folder = Path(inputs.out).parent
     write_distance_colours(folder / "precision.ply", result.recon, result.recon_distances, tau)
     write_distance_colours(folder / "recall.ply", result.gt, result.gt_distances, tau)
-    return {"tau": tau, "tau_rule": tau_rule, "precision": result.precision, "recall": result.recall,
-            "fscore": fscore(result.precision, result.recall),
+    return {"tau": tau, "tau_rule": tau_rule, "points": settings.tnt_points,
+            "precision": result.precision, "recall": result.recall, "fscore": fscore(result.precision, result.recall),
             "n_recon": len(result.recon.points), "n_gt": len(result.gt.points),
             "transformation": transform.tolist(),   # ours → GT frame
             "alignment_rmse": float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))}
