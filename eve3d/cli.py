@@ -163,10 +163,19 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol",
                             lambda key: getattr(a, flags[key]) is not None)
     reconstruction = a.model if protocol.scores == "model" else a.mesh
+    optional = lambda v: Path(v) if v else None  # noqa: E731
+    if a.check:
+        inputs = EvalInputs(scene, None, Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
+                            plane=optional(a.plane), settings=settings)
+        checked = protocol.check_ground_truth(inputs)
+        with atomic_path(Path(a.out)) as tmp:
+            tmp.write_text(json.dumps(checked, indent=2))
+        print(f"the ground truth of {a.scene} lines up with its cameras ({protocol.name} protocol): "
+              + ", ".join(f"{k} {v:.3g}" for k, v in checked.items() if isinstance(v, float)))
+        return
     if reconstruction is None:
         flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
         raise Eve3dError(f"the {protocol.name} protocol scores a {protocol.scores}: give {flag}")
-    optional = lambda v: Path(v) if v else None  # noqa: E731
     inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
                         plane=optional(a.plane), settings=settings)
     if bool(a.depth) != bool(a.exact_depth):
@@ -499,6 +508,9 @@ def _add_mesh_parsers(sub) -> None:
                                    "relative error against --exact-depth (pixels of confidence ≥ mesh.min_confidence) "
                                    "are added to the metrics")
     s.add_argument("--exact-depth", help="exact depth maps of the same views (results/SCENE/priors/oracle)")
+    s.add_argument("--check", action="store_true",
+                   help="no reconstruction: check that the ground truth lines up with the scene's cameras (dtu, "
+                        "tnt), write what was measured to --out, fail with a message naming the file otherwise")
     s.add_argument("--scene-name")
     s.add_argument("--method")
 

@@ -8,6 +8,7 @@ that write fixed names inside their output folder use the file-name constants be
     {results}/logs/{scene}/{rule}[_{what}].log
     {results}/benchmarks/{scene}/{rule}[_{what}].tsv
     {results}/{scene}/input/                  generated synthetic dataset
+    {results}/{scene}/ground_truth_check.json the ground truth lines up (dtu, tnt; before training)
     {results}/{scene}/sfm/                    posed dataset of an image-only one
     {results}/{scene}/stereo/                 virtual right views
     {results}/{scene}/priors/{backend}/       depth priors
@@ -47,6 +48,7 @@ HELD_OUT_DIR = "held_out"
 METRICS_FILE = "metrics.json"
 """An evaluation record (``"record": "evaluation"``)."""
 SUMMARY_FILE = "summary.csv"
+GROUND_TRUTH_CHECK_FILE = "ground_truth_check.json"
 
 PRETRAIN = "pretrain"
 """The pretrain stage's folder, beside the methods' folders of a scene."""
@@ -78,6 +80,11 @@ class Layout:
     def generated_gt_mesh(self, scene: str) -> Path:
         """The GT mesh inside a generated dataset (eve3d.synth writes it there)."""
         return self.input(scene) / "gt" / "mesh.ply"
+
+    def ground_truth_check(self, scene: str) -> Path:
+        """What the check that a benchmark scene's ground truth lines up with its cameras
+        measured (written before any training)."""
+        return self.scene(scene) / GROUND_TRUTH_CHECK_FILE
 
     def sfm(self, scene: str) -> Path:
         """The posed dataset that SfM makes of an image-only one."""

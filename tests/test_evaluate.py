@@ -4,18 +4,16 @@ import json
 import numpy as np
 import scipy
 import pytest
-from scipy.io import savemat
 
 from eve3d.evaluate import PROTOCOLS, EvalInputs
 from eve3d.settings import EvalSettings
 from eve3d.evaluate.common import distance_metrics, mesh_distances, read_mesh
 from eve3d.evaluate.dtu import cull_by_masks
-from eve3d.evaluate.synthetic import visible_surface_samples
 from eve3d.io import load_scene
 from eve3d.raycast import MeshRaycaster, seen_counts
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.synth import object_cameras
-from tests.helpers import dtu_scale_mat, run_cli, write_dtu_layout
+from tests.helpers import dtu_scale_mat, run_cli, write_dtu_ground_truth, write_dtu_layout
 
 
 def point_triangle_distance(p, a, b, c):
@@ -189,22 +187,11 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     write_dtu_layout(object_scene, root, scale)
     scene = load_scene(root)
     gt = read_mesh(object_scene.gt_mesh)
-    # Like a structured-light scan, the STL points cover the surface the cameras see.
-    stl, _ = visible_surface_samples(gt, object_scene.cameras, 400_000, 1, np.random.default_rng(0))
-    stl = stl @ scale[:3, :3].T + scale[:3, 3]
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(stl))
-    o3d.io.write_point_cloud(str(tmp_path / "stl001_total.ply"), cloud)
-    res, lo = 4.0, stl.min(0) - 8
-    shape = np.ceil((stl.max(0) + 8 - lo) / res).astype(int)
-    obs = np.zeros(shape, dtype=np.uint8)
-    idx = np.round((stl - lo) / res).astype(int)
-    obs[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
-    savemat(tmp_path / "ObsMask1_10.mat", {"ObsMask": obs, "BB": np.stack([lo, lo + shape * res]), "Res": res})
-    savemat(tmp_path / "Plane1.mat", {"P": np.array([0, 0, 1.0, -(scale[2, 3] + 0.001 * scale[2, 2])])})
+    files = write_dtu_ground_truth(object_scene, tmp_path, 1, scale)
 
     def score(mesh_path):
-        return PROTOCOLS["dtu"].run(EvalInputs(scene, mesh_path, tmp_path / "m.json", gt=tmp_path / "stl001_total.ply",
-                                               obs_mask=tmp_path / "ObsMask1_10.mat", plane=tmp_path / "Plane1.mat",
+        return PROTOCOLS["dtu"].run(EvalInputs(scene, mesh_path, tmp_path / "m.json", gt=files["stl"],
+                                               obs_mask=files["obs_mask"], plane=files["plane"],
                                                settings=EvalSettings(dtu_density=0.5)))
 
     # The mesh to score: the GT cut into small triangles (mask culling judges vertices),

@@ -14,13 +14,7 @@ from eve3d.io.colmap import write_colmap
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.surface import sample_surface
 from eve3d.synth import _look_at
-
-
-def write_crop(path, polygon, axis_min, axis_max):
-    path.write_text(json.dumps({
-        "class_name": "SelectionPolygonVolume", "orthogonal_axis": "Z", "axis_min": axis_min,
-        "axis_max": axis_max, "bounding_polygon": [[x, y, 0.0] for x, y in polygon],
-        "version_major": 1, "version_minor": 0}))
+from tests.helpers import similarity, write_crop, write_log
 
 
 def inside_polygon(xy, polygon):
@@ -116,16 +110,6 @@ def test_hot_r_colours():
     assert rgb[1, 0] == 1.0 and 0.3 < rgb[1, 1] < 0.4 and rgb[1, 2] == 0.0   # orange at the middle
 
 
-def similarity(scale, axis, angle, translation):
-    import open3d as o3d
-
-    m = np.eye(4)
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    m[:3, :3] = scale * o3d.geometry.get_rotation_matrix_from_axis_angle(axis * angle)
-    m[:3, 3] = translation
-    return m
-
-
 def apply(m, points):
     return points @ m[:3, :3].T + m[:3, 3]
 
@@ -199,9 +183,7 @@ def write_tnt_layout(root, name="Ignatius", n_log=20, gt_points=250_000):
         pose[:3, 3] = apply(np.linalg.inv(G), c[None])[0]
         log.append(pose)
     write_colmap(Scene(root=root, cameras=cameras), root / "sparse" / "0")
-    with open(root / f"{name}_COLMAP_SfM.log", "w") as f:
-        for i, pose in enumerate(log[:n_log]):
-            f.write(f"{i} {i} 0\n" + "\n".join(" ".join(f"{v:.12f}" for v in row) for row in pose) + "\n")
+    write_log(root / f"{name}_COLMAP_SfM.log", log[:n_log])
     np.savetxt(root / f"{name}_trans.txt", G)
 
     mesh = sum(gt_mesh_parts()[1:], gt_mesh_parts()[0])

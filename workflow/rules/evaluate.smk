@@ -1,4 +1,23 @@
-# Metrics per scene and method, and the summary table over all of them.
+# Metrics per scene and method, and the summary table over all of them; before any
+# training, the check that a benchmark scene's ground truth lines up with its cameras.
+
+
+rule check_ground_truth:
+    input:
+        unpack(ground_truth_inputs),
+    output:
+        LAYOUT.ground_truth_check("{scene}"),
+    params:
+        args=ground_truth_args,
+        config=lambda wc: job_config(evaluate=evaluate_settings(wc.scene)),
+    log:
+        LAYOUT.log("{scene}", "check_ground_truth"),
+    conda:
+        CONDA_ENV
+    shell:
+        # the message that names the misplaced file is the log's last line: show it
+        "{EVE3D} evaluate --check --scene {input.scene} --out {output} {params.args} --config {params.config}"
+        " > {log} 2>&1 || {{ tail -n 3 {log} >&2; exit 1; }}"
 
 
 rule evaluate:
