@@ -10,6 +10,7 @@ from pathlib import Path
 from collections.abc import Callable
 from typing import Any
 
+from eve3d.report import SUMMARY_COLUMNS
 from eve3d.scene import Eve3dError
 
 
@@ -198,8 +199,6 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     print(format_table([metrics]))
 
 
-SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "points", "accuracy", "completeness", "chamfer",
-                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "psnr", "ssim")
 
 
 def _cmd_bench(a: argparse.Namespace) -> None:
@@ -336,6 +335,20 @@ def _cmd_summary(a: argparse.Namespace) -> None:
         print(format_table(view_rows, VIEW_COLUMNS))
 
 
+def _cmd_report(a: argparse.Namespace) -> None:
+    from eve3d.layout import Layout
+    from eve3d.report import write_report
+
+    datasets = {}
+    for item in a.dataset:
+        scene, sep, folder = item.partition("=")
+        if not sep:
+            raise Eve3dError(f"--dataset {item!r}: expected SCENE=FOLDER")
+        datasets[scene] = Path(folder)
+    written = write_report(Layout(a.results), Path(a.out), datasets, a.backend, a.benchmark)
+    print(f"wrote {len(written)} report pages to {a.out}")
+
+
 def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
     from eve3d.fileio import atomic_path
 
@@ -425,6 +438,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("metrics", nargs="+")
     s.add_argument("--out", required=True)
     s.set_defaults(func=_cmd_summary)
+    s = sub.add_parser("report", help="the report's pages from a results folder (snakemake --report gathers them)")
+    s.add_argument("--results", required=True, help="the results folder (its summary.csv and benchmark files)")
+    s.add_argument("--out", required=True, help="folder for summary.html, runtimes.html, charts/, scenes/")
+    s.add_argument("--dataset", action="append", default=[], metavar="SCENE=FOLDER",
+                   help="a scene's posed dataset (its first photo heads the scene's sheets); repeat per scene")
+    s.add_argument("--backend", default="sgbm", help="the stereo priors shown (priors/BACKEND)")
+    s.add_argument("--benchmark", help="a benchmark of eve3d.benchmarks: its published figures join the means")
+    s.set_defaults(func=_cmd_report)
     _add_bench_parser(sub)
     return p
 

@@ -14,8 +14,8 @@ from eve3d.io import load_scene
 from eve3d.layout import Layout
 from eve3d.scene import Eve3dError
 from eve3d.synth import generate
-from tests.helpers import (run_cli, snakemake, write_dtu_release, write_log, write_mipnerf360_release,
-                           write_tnt_release)
+from tests.helpers import (open_report, run_cli, snakemake, write_dtu_release, write_log,
+                           write_mipnerf360_release, write_tnt_release)
 
 BENCHMARK_SCENES = {
     "dtu": ["scan24", "scan37", "scan40", "scan55", "scan63", "scan65", "scan69", "scan83", "scan97", "scan105",
@@ -189,3 +189,17 @@ def test_each_benchmark_runs_end_to_end(downloads, tmp_path, name):
     if name in ("dtu", "tnt"):
         check = json.loads(layout.ground_truth_check(scene).read_text())
         assert check["protocol"] == name
+    # the report: Snakemake gathers the pages into one file, which a browser shows whole
+    r = snakemake("-c1", "--configfile", str(cfg), "--replace-workflow-config", "--report", str(layout.report()))
+    assert r.returncode == 0, r.stderr[-3000:]
+    seen = open_report(layout.report(), tmp_path / "report.png")
+    assert sorted((row["scene"], row["method"]) for row in seen["rows"]) == sorted((scene, m) for m in trained)
+    sheets = [p for p in seen["images"] if "/report/scenes/" in p]
+    assert len(sheets) == len(trained) and any(p.endswith("charts/runtimes.png") for p in seen["images"])
+    assert seen["broken"] == [] and seen["problems"] == []
+    if name == "tnt":  # and the browser check sees an image that does not decode
+        chart = layout.report_pages() / "charts" / "fscore.png"
+        chart.write_bytes(chart.read_bytes()[:200])
+        r = snakemake("-c1", "--configfile", str(cfg), "--replace-workflow-config", "--report", str(tmp_path / "b.html"))
+        assert r.returncode == 0, r.stderr[-3000:]
+        assert open_report(tmp_path / "b.html")["broken"] == [str(chart)]

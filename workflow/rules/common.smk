@@ -256,3 +256,15 @@ def evaluate_args(wildcards, input):
     if scores_depth(wildcards.scene):
         args.append(f"--depth {input.depth} --exact-depth {input.exact_depth}")
     return " ".join(args + ["--config", job_config("mesh", evaluate=evaluate_settings(wildcards.scene))])
+
+
+def report_args(wildcards):
+    """Each scene's posed dataset (its first photo heads the report's sheets), the priors
+    shown, and the benchmark whose published figures join the means."""
+    from types import SimpleNamespace
+
+    args = [f"--dataset {shlex.quote(f'{s}={posed_dataset(SimpleNamespace(scene=s))}')}" for s in SCENES]
+    args.append(f"--backend {config['stereo']['backend']}")
+    if config.get("benchmark"):
+        args.append(f"--benchmark {config['benchmark']}")
+    return " ".join(args)

@@ -46,3 +46,26 @@ rule summary:
         CONDA_ENV
     shell:
         "{EVE3D} summary {input.metrics} {input.novel_views} --out {output}"
+
+
+rule report_pages:
+    input:
+        summary=LAYOUT.summary(),
+        meshes=mesh_files(),
+    output:
+        summary=report(LAYOUT.report_pages() / "summary.html", caption="../report/summary.rst", category="1 Summary"),
+        charts=report(directory(LAYOUT.report_pages() / "charts"), patterns=["{chart}.png"],
+                      caption="../report/charts.rst", category="2 Charts", labels={"chart": "{chart}"}),
+        scenes=report(directory(LAYOUT.report_pages() / "scenes"), patterns=["{scene}/{method}.png"],
+                      caption="../report/scenes.rst", category="3 Scenes", subcategory="{scene}",
+                      labels={"scene": "{scene}", "method": "{method}"}),
+        runtimes=report(LAYOUT.report_pages() / "runtimes.html", caption="../report/runtimes.rst",
+                        category="4 Run times"),
+    params:
+        args=report_args,
+    log:
+        LAYOUT.logs() / "report_pages.log",
+    conda:
+        CONDA_ENV
+    shell:
+        "{EVE3D} report --results {LAYOUT.root} --out {LAYOUT.root}/report {params.args} > {log} 2>&1"
