@@ -345,7 +345,11 @@ def _cmd_report(a: argparse.Namespace) -> None:
         if not sep:
             raise Eve3dError(f"--dataset {item!r}: expected SCENE=FOLDER")
         datasets[scene] = Path(folder)
-    written = write_report(Layout(a.results), Path(a.out), datasets, a.backend, a.benchmark)
+    from eve3d.settings import StereoSettings
+
+    config = _config(a)
+    backend = _settings(a, StereoSettings, "stereo", config).backend
+    written = write_report(Layout(a.results), Path(a.out), datasets, backend, config.get("benchmark"))
     print(f"wrote {len(written)} report pages to {a.out}")
 
 
@@ -443,8 +447,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="folder for summary.html, runtimes.html, charts/, scenes/")
     s.add_argument("--dataset", action="append", default=[], metavar="SCENE=FOLDER",
                    help="a scene's posed dataset (its first photo heads the scene's sheets); repeat per scene")
-    s.add_argument("--backend", default="sgbm", help="the stereo priors shown (priors/BACKEND)")
-    s.add_argument("--benchmark", help="a benchmark of eve3d.benchmarks: its published figures join the means")
+    _config_arguments(s)  # stereo.backend: the priors shown; benchmark: its published figures join the means
     s.set_defaults(func=_cmd_report)
     _add_bench_parser(sub)
     return p

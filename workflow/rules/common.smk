@@ -259,12 +259,10 @@ def evaluate_args(wildcards, input):
 
 
 def report_args(wildcards):
-    """Each scene's posed dataset (its first photo heads the report's sheets), the priors
-    shown, and the benchmark whose published figures join the means."""
+    """Each scene's posed dataset (its first photo heads the report's sheets), and the job
+    config: `stereo` (the priors shown) and the benchmark whose published figures join the means."""
     from types import SimpleNamespace
 
     args = [f"--dataset {shlex.quote(f'{s}={posed_dataset(SimpleNamespace(scene=s))}')}" for s in SCENES]
-    args.append(f"--backend {config['stereo']['backend']}")
-    if config.get("benchmark"):
-        args.append(f"--benchmark {config['benchmark']}")
-    return " ".join(args)
+    benchmark = {"benchmark": config["benchmark"]} if config.get("benchmark") else {}
+    return " ".join(args + ["--config", job_config("stereo", **benchmark)])
