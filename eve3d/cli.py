@@ -280,6 +280,25 @@ def _cmd_bench_methods(a: argparse.Namespace) -> None:
     print(json.dumps(report, indent=2) if a.json else bench.format_methods_report(report))
 
 
+def _cmd_bench_standin(a: argparse.Namespace) -> None:
+    import shutil
+    import tempfile
+
+    from eve3d.io import load_scene
+    from eve3d.standin import STANDIN_SCENE, write_standin
+    from eve3d.synth import generate
+
+    root = Path(a.root)
+    if (root / STANDIN_SCENE[a.benchmark]).exists():
+        raise Eve3dError(f"{root / STANDIN_SCENE[a.benchmark]}: already there; give an empty folder")
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = load_scene(generate("object", Path(tmp) / "object", views=a.views, width=a.width, height=a.height))
+        folder = write_standin(a.benchmark, scene, root)
+    print(f"wrote a stand-in {STANDIN_SCENE[a.benchmark]} ({a.views} views, {a.width}×{a.height}) to {folder}; run it:\n"
+          f"  snakemake -c2 --configfile config/benchmarks/{a.benchmark}.yaml --replace-workflow-config --config root={root} "
+          f"'only=[{STANDIN_SCENE[a.benchmark]}]'")
+
+
 def _cmd_bench_real(a: argparse.Namespace) -> None:
     from eve3d import bench
 
@@ -576,6 +595,16 @@ def _add_bench_parser(sub) -> None:
     ev.add_argument("--gt", help="GT mesh of the given meshes")
     ev.add_argument("--json", action="store_true", help="machine-readable output")
     ev.set_defaults(func=_cmd_bench_evaluate)
+    from eve3d.benchmarks import BENCHMARKS
+
+    sd = what.add_parser("standin", help="a generated object written as a benchmark's download lays out one scene, "
+                                         "with its ground-truth files: try or time a benchmark config without it")
+    sd.add_argument("benchmark", choices=list(BENCHMARKS))
+    sd.add_argument("root", help="the download's folder to write (the config's root)")
+    sd.add_argument("--views", type=int, default=49, help="photos (DTU has 49; T&T 150-1100; Mip-NeRF 360 125-311)")
+    sd.add_argument("--width", type=int, default=1600, help="photo width (DTU 1600; T&T 1920; Mip-NeRF 360 ~5000)")
+    sd.add_argument("--height", type=int, default=1200)
+    sd.set_defaults(func=_cmd_bench_standin)
     for name, func, config, help in [
             ("methods", _cmd_bench_methods, "methods", "run every method on the generated object and room (Snakemake) "
                                                         "and print scores, times and the priors' accuracy"),

@@ -70,6 +70,12 @@ def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEM
     from eve3d.benchmarks import expand_benchmark
     from eve3d.synth import KINDS
 
+    if config.get("only") is not None:  # run some of the scenes (a benchmark's downloaded ones)
+        unknown = [s for s in config["only"] if s not in config["scenes"]]
+        if unknown:
+            raise Eve3dError(f"{source}: only: unknown scene(s) {', '.join(map(str, unknown))} "
+                             f"(scenes: {', '.join(config['scenes'])})")
+        config["scenes"] = {s: config["scenes"][s] for s in config["only"]}
     config = expand_benchmark(config, source)
     for name, scene in config["scenes"].items():
         if "synthetic" not in scene and "path" not in scene:

@@ -14,8 +14,8 @@ from eve3d.io import load_scene
 from eve3d.layout import Layout
 from eve3d.scene import Eve3dError
 from eve3d.synth import generate
-from tests.helpers import (open_report, run_cli, snakemake, write_dtu_release, write_log,
-                           write_mipnerf360_release, write_tnt_release)
+from eve3d.standin import STANDIN_SCENE, write_log, write_standin
+from tests.helpers import open_report, run_cli, snakemake
 
 BENCHMARK_SCENES = {
     "dtu": ["scan24", "scan37", "scan40", "scan55", "scan63", "scan65", "scan69", "scan83", "scan97", "scan105",
@@ -23,7 +23,7 @@ BENCHMARK_SCENES = {
     "tnt": ["Barn", "Caterpillar", "Courthouse", "Ignatius", "Meetingroom", "Truck"],
     "mipnerf360": ["bicycle", "flowers", "garden", "stump", "treehill", "room", "counter", "kitchen", "bonsai"],
 }
-MINIATURE = {"dtu": "scan24", "tnt": "Barn", "mipnerf360": "room"}
+MINIATURE = STANDIN_SCENE
 """The scene of each benchmark that the miniature download holds."""
 SHORT = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
 TINY = {"preset": "cpu", "mesh": {"coarsen": 8},
@@ -39,20 +39,13 @@ def object_views(tmp_path_factory):
     return load_scene(generate("object", tmp_path_factory.mktemp("gen") / "object", views=12, width=128, height=96))
 
 
-def make_download(benchmark, scene, root):
-    writer = {"dtu": write_dtu_release, "tnt": write_tnt_release, "mipnerf360": write_mipnerf360_release}[benchmark]
-    if benchmark == "dtu":
-        return writer(scene, root, scan=24)
-    return writer(scene, root, MINIATURE[benchmark])
-
-
 @pytest.fixture(scope="module")
 def downloads(object_views, tmp_path_factory):
     """benchmark → the root of its miniature download."""
     roots = {}
     for name in MINIATURE:
         roots[name] = tmp_path_factory.mktemp(name)
-        make_download(name, object_views, roots[name])
+        write_standin(name, object_views, roots[name])
     return roots
 
 

@@ -13,7 +13,8 @@ from eve3d.io import load_scene
 from eve3d.raycast import MeshRaycaster, seen_counts
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.synth import object_cameras
-from tests.helpers import dtu_scale_mat, run_cli, write_dtu_ground_truth, write_dtu_layout
+from eve3d.standin import dtu_scale_mat, write_dtu_ground_truth, write_dtu_layout
+from tests.helpers import run_cli
 
 
 def point_triangle_distance(p, a, b, c):

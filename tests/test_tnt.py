@@ -14,7 +14,7 @@ from eve3d.io.colmap import write_colmap
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.surface import sample_surface
 from eve3d.synth import _look_at
-from tests.helpers import similarity, write_crop, write_log
+from eve3d.standin import similarity, write_crop, write_log
 
 
 def inside_polygon(xy, polygon):

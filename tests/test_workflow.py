@@ -12,7 +12,8 @@ from eve3d.io import load_scene
 from eve3d.io.colmap import write_colmap
 from eve3d.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout
 from eve3d.synth import generate
-from tests.helpers import REPO, dtu_scale_mat, run_cli, snakemake, write_config, write_dtu_layout
+from eve3d.standin import dtu_scale_mat, write_dtu_layout
+from tests.helpers import REPO, run_cli, snakemake, write_config
 
 # -- what each rule writes ---------------------------------------------------------------------
 
