@@ -281,7 +281,6 @@ def _cmd_bench_methods(a: argparse.Namespace) -> None:
 
 
 def _cmd_bench_standin(a: argparse.Namespace) -> None:
-    import shutil
     import tempfile
 
     from eve3d.io import load_scene

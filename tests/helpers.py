@@ -3,7 +3,6 @@ imports another test module or conftest: what two modules need lives here."""
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path

@@ -66,6 +66,20 @@ def test_benchmark_configs_list_the_benchmarks_scenes():
         resolve_config(yaml.safe_load((REPO / "config/benchmarks/dtu.yaml").read_text()), "dtu.yaml")
 
 
+def test_a_stand_in_download_runs_some_scenes_of_a_config(tmp_path):
+    """`eve3d bench standin` writes one scan as the download lays it out; `only` picks the
+    scans a user has, and without it the first missing one is named."""
+    r = run_cli("bench", "standin", "dtu", tmp_path / "DTU", "--views", "6", "--width", "96", "--height", "72")
+    assert r.returncode == 0 and "only=[scan24]" in r.stdout, r.stderr
+    config = yaml.safe_load((REPO / "config/benchmarks/dtu.yaml").read_text())
+    config.update(root=str(tmp_path / "DTU"))
+    assert list(resolve_config({**config, "only": ["scan24"]})["scenes"]) == ["scan24"]
+    with pytest.raises(Eve3dError, match=rf"scenes.scan37 \(dtu benchmark\): {tmp_path}/DTU/scan37: not found"):
+        resolve_config(config)
+    with pytest.raises(Eve3dError, match=r"only: unknown scene\(s\) scan1 \(scenes: scan24, scan37"):
+        resolve_config({**config, "only": ["scan1"]})
+
+
 def test_benchmark_configs_resolve_on_the_released_layouts(downloads, tmp_path):
     from eve3d.config import scene_protocol, scene_sections
 
