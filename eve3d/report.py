@@ -9,8 +9,8 @@ self-contained HTML file, from the outputs the ``report`` rule marks with ``repo
   ``benchmark:`` files.
 * ``scenes/{scene}/{method}.png``: one sheet per scene and method: the photo of its first
   view, the stereo prior, the refined prior D̂ (methods that learn it), the rendered depth
-  and normals, the shaded mesh, and the T&T precision / recall error maps (points coloured
-  by distance, seen from above) or the held-out render | photo.
+  and normals, the shaded mesh, and the precision / recall error maps (the points scored,
+  coloured by distance, seen along z) or the held-out render | photo.
 """
 from __future__ import annotations
 
@@ -160,9 +160,9 @@ def runtimes_chart(rows: list[dict], out: Path) -> None:
     plt.close(fig)
 
 
-def _error_map(path: Path):
-    """A T&T ``precision.ply`` / ``recall.ply`` (points coloured by distance) seen from
-    above (x, y), as an RGB image."""
+def _error_map(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """The points and colours of an error map (``precision.ply`` / ``recall.ply``, points
+    coloured by distance; at most 200k of them), or None when it is empty."""
     import open3d as o3d
 
     cloud = o3d.io.read_point_cloud(str(path))
@@ -191,7 +191,7 @@ def scene_panels(layout: Layout, scene: str, method: str, photo: Path | None, ba
         if (folder / f"{name}.ply").is_file():
             cloud = _error_map(folder / f"{name}.ply")
             if cloud is not None:
-                panels.append((f"{name} errors (white < τ, black ≥ 3τ; from above)", cloud))
+                panels.append((f"{name} errors (white 0, black ≥ 3τ; DTU 10 mm), along z", cloud))
     return panels
 
 

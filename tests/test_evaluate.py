@@ -7,7 +7,7 @@ import pytest
 
 from eve3d.evaluate import PROTOCOLS, EvalInputs
 from eve3d.settings import EvalSettings
-from eve3d.evaluate.common import distance_metrics, mesh_distances, read_mesh
+from eve3d.evaluate.common import distance_metrics, hot_r, mesh_distances, read_mesh
 from eve3d.evaluate.dtu import cull_by_masks
 from eve3d.io import load_scene
 from eve3d.raycast import MeshRaycaster, seen_counts
@@ -86,8 +86,14 @@ def test_mesh_displaced_by_delta_scores_delta(tmp_path):
     assert m["accuracy"] == pytest.approx(delta, rel=0.05) and m["completeness"] == pytest.approx(delta, rel=0.05)
     # The bottom of the sphere faces the plate, out of every camera's sight.
     assert 0.9 < m["visible_gt_fraction"] < 0.99
-    assert score(tau=1.5 * delta)["fscore"] > 0.99 and score(tau=0.5 * delta)["fscore"] < 0.01
     assert m["tau_rule"].startswith("0.0025 x visible-GT bounding-box diagonal")
+    # the error maps: every point δ from the other surface, coloured δ/3τ of the way to black
+    for name, count in (("precision", m["n_recon"]), ("recall", m["n_gt"])):
+        cloud = o3d.io.read_point_cloud(str(tmp_path / f"{name}.ply"))
+        assert len(cloud.points) == min(count, 200_000)
+        expected = hot_r(np.array([delta / (3 * m["tau"])]))[0]
+        assert np.mean(np.abs(np.asarray(cloud.colors) - expected).max(axis=1) < 0.05) > 0.95
+    assert score(tau=1.5 * delta)["fscore"] > 0.99 and score(tau=0.5 * delta)["fscore"] < 0.01
 
 
 def test_synthetic_protocol_ignores_unseen_gt_and_crops_far_recon(tmp_path):
@@ -204,6 +210,8 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     o3d.io.write_triangle_mesh(str(tmp_path / "seen.ply"), seen)
     exact = score(tmp_path / "seen.ply")
     assert exact["protocol"] == "dtu" and exact["chamfer"] < 0.5 and exact["n_recon"] > 10_000
+    assert len(o3d.io.read_point_cloud(str(tmp_path / "precision.ply")).points) == min(exact["n_recon"], 200_000)
+    assert o3d.io.read_point_cloud(str(tmp_path / "recall.ply")).has_colors()
     # every score says which evaluator and which library versions produced it
     assert exact["evaluator"] == "eve3d.evaluate.dtu.evaluate_dtu"
     assert exact["versions"]["open3d"] == o3d.__version__ and exact["versions"]["scipy"] == scipy.__version__

@@ -7,7 +7,8 @@ import pytest
 
 from eve3d.evaluate import EvalInputs
 from eve3d.settings import EvalSettings
-from eve3d.evaluate.tnt import TAU, align_trajectory, evaluate_tnt, hot_r, log_centres, read_crop, score
+from eve3d.evaluate.common import hot_r
+from eve3d.evaluate.tnt import TAU, align_trajectory, evaluate_tnt, log_centres, read_crop, score
 from eve3d.fileio import write_image
 from eve3d.io import load_scene
 from eve3d.io.colmap import write_colmap

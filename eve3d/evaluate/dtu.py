@@ -4,19 +4,25 @@ Cull the mesh by the object masks dilated by a disk of 24 px (2DGS's ``cull_scan
 ``scale_mat``, sample the triangles on a 0.2 mm barycentric grid and thin greedily to
 0.2 mm, keep the points inside the bounding box and the ``ObsMask``; accuracy over those
 against the STL points, completeness of the STL points above the ground plane; distances
-≥ 20 mm are left out of both means; Chamfer = mean(accuracy, completeness).
+≥ 20 mm are left out of both means; Chamfer = mean(accuracy, completeness). ``precision.ply``
+and ``recall.ply`` beside ``metrics.json`` colour the points scored by their distance.
 """
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from eve3d.evaluate import EvalInputs
-from eve3d.evaluate.common import nearest_distances, read_mesh
+from eve3d.evaluate.common import nearest_distances, read_mesh, write_error_maps
 from eve3d.scene import Eve3dError, Scene
 
 MASK_DILATION = 24
 """Radius (px) of the disk the object masks are dilated by before culling."""
+ERROR_MAP_MM = 10.0
+"""precision.ply / recall.ply colour distances from white (0) to black (10 mm and beyond),
+DTUeval-python's visualisation threshold."""
 CHECK_POINTS = 20_000
 """STL points the ground-truth check projects into the masks."""
 MIN_IN_MASK = 0.8
@@ -187,6 +193,7 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     if not len(near_d2s) or not len(near_s2d):
         raise Eve3dError(f"{inputs.reconstruction}: no point of the mesh inside the ObsMask lies within "
                          f"{s.dtu_max_dist:g} mm of {inputs.gt}: is the mesh in the scan's normalised frame?")
+    write_error_maps(Path(inputs.out).parent, data_in_obs, d2s, stl[above], s2d, ERROR_MAP_MM)
     acc, comp = float(near_d2s.mean()), float(near_s2d.mean())
     return {"accuracy": acc, "completeness": comp, "chamfer": (acc + comp) / 2,
             "n_recon": int(len(data_in_obs)), "n_gt": int(above.sum())}

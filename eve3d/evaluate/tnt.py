@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from eve3d.evaluate import GIVEN_TAU, EvalInputs
-from eve3d.evaluate.common import fscore, nearest_distances, read_mesh
+from eve3d.evaluate.common import COLOUR_RANGE, fscore, nearest_distances, read_mesh, write_error_maps
 from eve3d.scene import Eve3dError, Scene
 
 TAU: dict[str, float] = {"Barn": 0.01, "Caterpillar": 0.005, "Church": 0.025, "Courthouse": 0.025,
@@ -37,8 +37,6 @@ MAX_POINTS = 4_000_000
 """The last ICP stage thins a cropped cloud above this many points (toolbox ``MAX_POINT_NUMBER``)."""
 HISTOGRAM_RANGE = 5.0
 """The toolbox histograms distances up to 5τ; a longer search cannot change P or R."""
-COLOUR_RANGE = 3.0
-"""Distances are coloured from 0 (white) to 3τ and beyond (black)."""
 
 
 def scene_tau(name: str | None, tau: float | None) -> tuple[float, str]:
@@ -186,34 +184,6 @@ def score(recon_pcd, gt_pcd, transform: np.ndarray, volume, tau: float) -> Score
     return Score(precision, recall, d1, d2, s, t)
 
 
-_HOT = ((0.0, 0.365079, 1.0), (0.0416, 1.0, 1.0),                 # red
-        (0.0, 0.365079, 0.746032, 1.0), (0.0, 0.0, 1.0, 1.0),      # green
-        (0.0, 0.746032, 1.0), (0.0, 0.0, 1.0))                     # blue
-
-
-def hot_r(x: np.ndarray) -> np.ndarray:
-    """matplotlib's ``hot_r`` colormap (N,) → RGB (N,3) without matplotlib: ``hot``'s
-    piecewise-linear channels, reversed, read from a 256-entry table as matplotlib does."""
-    x = np.asarray(x, dtype=np.float64)
-    index = np.clip(np.floor(np.nan_to_num(x, nan=0.0) * 256), 0, 255)
-    u = 1.0 - index / 255.0   # reversed map: hot at 1 - x
-    return np.stack([np.interp(u, _HOT[2 * c], _HOT[2 * c + 1]) for c in range(3)], axis=-1)
-
-
-def write_distance_colours(path: Path, pcd, distances: np.ndarray, tau: float) -> None:
-    """``pcd`` coloured by distance (white at 0, black from 3τ), written atomically."""
-    import open3d as o3d
-
-    from eve3d.fileio import atomic_path
-
-    out = o3d.geometry.PointCloud(pcd)
-    top = COLOUR_RANGE * tau
-    out.colors = o3d.utility.Vector3dVector(hot_r(np.minimum(distances, top) / top))
-    with atomic_path(path) as tmp:
-        if not o3d.io.write_point_cloud(str(tmp), out):
-            raise Eve3dError(f"{path}: could not write the point cloud")
-
-
 def reconstruction_points(mesh, mode: str, tau: float, samples: int, rng: np.random.Generator) -> np.ndarray:
     """The points of the mesh that are scored (``evaluate.tnt_points``): its vertices, and in
     ``sampled`` mode up to ``samples`` uniform area samples, about one per (τ/2)² (τ in the
@@ -314,8 +284,8 @@ def evaluate_tnt(inputs: EvalInputs) -> dict:
     transform = refine_alignment(recon_pcd, gt_pcd, rough, volume, tau)
     result = score(recon_pcd, gt_pcd, transform, volume, tau)
     folder = Path(inputs.out).parent
-    write_distance_colours(folder / "precision.ply", result.recon, result.recon_distances, tau)
-    write_distance_colours(folder / "recall.ply", result.gt, result.gt_distances, tau)
+    write_error_maps(folder, np.asarray(result.recon.points), result.recon_distances, np.asarray(result.gt.points),
+                     result.gt_distances, COLOUR_RANGE * tau)
     return {"tau": tau, "tau_rule": tau_rule, "points": settings.tnt_points,
             "precision": result.precision, "recall": result.recall, "fscore": fscore(result.precision, result.recall),
             "n_recon": len(result.recon.points), "n_gt": len(result.gt.points),
