@@ -5,9 +5,9 @@ A benchmark config (``config/benchmarks/{dtu,tnt,mipnerf360}.yaml``) names its l
 (``benchmark: dtu``), the folder of the download (``root``, in the file or on the command
 line: ``--config root=/data/DTU``) and its scenes by their released names; each scene is
 expanded here into an ordinary workflow scene (``path`` and its ground-truth keys). The
-checks here read only small files (planning reads them on every run); the ones that read
-the ground truth itself run in the workflow's ``check_ground_truth`` job
-(:func:`eve3d.evaluate.check.check_ground_truth`).
+checks here only look for files (planning runs them on every run); the ones that read the
+cameras and the ground truth run in the workflow's ``check_ground_truth`` job, before any
+training (``eve3d.evaluate.Protocol.check_ground_truth``).
 
 The trees each layout expects (README, "Benchmarks")::
 
@@ -30,17 +30,18 @@ import numpy as np
 from eve3d.scene import Eve3dError
 
 
-def _expected(path: Path, what: str, root: Path) -> Eve3dError:
-    """The error for a file that is not where the layout puts it; names the place it was
-    found instead, when a file of that name lies elsewhere under ``root``."""
-    found = next((p for p in root.rglob(path.name) if p != path), None) if root.is_dir() else None
+def _expected(path: Path, what: str, root: Path, named: bool = False) -> Eve3dError:
+    """The error for a file that is not where the layout puts it. For a file whose name
+    names its scene (``named``: ``ObsMask24_10.mat``, ``Barn.ply``), also the place a file
+    of that name was found instead under ``root``."""
+    found = next((p for p in root.rglob(path.name) if p != path), None) if named and root.is_dir() else None
     where = f"; found {found}: move it there" if found else ""
     return Eve3dError(f"{path}: not found ({what}){where}")
 
 
-def _need(path: Path, what: str, root: Path, folder: bool = False) -> Path:
+def _need(path: Path, what: str, root: Path, folder: bool = False, named: bool = False) -> Path:
     if not (path.is_dir() if folder else path.is_file()):
-        raise _expected(path, what, root)
+        raise _expected(path, what, root, named)
     return path
 
 
@@ -71,15 +72,11 @@ def dtu_scene(root: Path, name: str) -> dict:
     files = dtu_files(root, name)
     for key, path in files.items():
         _need(path, f"DTU's official {'Points/stl point cloud' if key == 'stl' else 'ObsMask folder file'} "
-                    f"of {name}", root)
+                    f"of {name}", root, named=True)
     return {"path": str(folder), "dtu": {k: str(v) for k, v in files.items()}}
 
 
 # --------------------------------------------------------------------------- Tanks and Temples
-
-TNT_FILES = {"trajectory": "_COLMAP_SfM.log", "alignment": "_trans.txt", "crop": ".json", "gt": ".ply"}
-"""The official evaluation files of a T&T scene, beside its images: ``{Scene}{suffix}``."""
-
 
 def tnt_scene(root: Path, name: str) -> dict:
     folder = _need(root / name, "the scene's folder of the GOF/2DGS COLMAP release", root, folder=True)
@@ -88,27 +85,11 @@ def tnt_scene(root: Path, name: str) -> dict:
 
     if find_colmap_model(folder) is None:
         raise _expected(folder / "sparse" / "0", "the scene's COLMAP model (cameras, images, points3D)", root)
-    for suffix in TNT_FILES.values():
-        _need(folder / f"{name}{suffix}", f"the official T&T evaluation file of {name}", root)
-    check_trajectory_count(folder, name)
+    from eve3d.io.tnt import GROUND_TRUTH_FILES
+
+    for suffix in GROUND_TRUTH_FILES.values():
+        _need(folder / f"{name}{suffix}", f"the official T&T evaluation file of {name}", root, named=True)
     return {"path": str(folder)}
-
-
-def check_trajectory_count(folder: Path, name: str) -> None:
-    """The evaluation trajectory has one camera per image of the scene's model: a log made
-    for another image set (a training log of a re-run SfM) fails here, by count."""
-    from eve3d.io.colmap import model_file, read_reconstruction
-    from eve3d.io.loader import find_colmap_model
-    from eve3d.io.tnt import read_log_trajectory
-
-    log = folder / f"{name}{TNT_FILES['trajectory']}"
-    model = find_colmap_model(folder)
-    images = sum(img.has_pose for img in read_reconstruction(model).images.values())
-    cameras = len(read_log_trajectory(log))
-    if cameras != images:
-        raise Eve3dError(f"{log}: {cameras} cameras, but the scene's model ({model_file(model, 'images')}) has "
-                         f"{images} posed images; the evaluation pairs them one to one. Is it the official "
-                         f"evaluation trajectory of {name} (not a training log from another SfM run)?")
 
 
 # --------------------------------------------------------------------------- Mip-NeRF 360

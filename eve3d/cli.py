@@ -168,11 +168,19 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     if a.check:
         inputs = EvalInputs(scene, None, Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
                             plane=optional(a.plane), settings=settings)
-        checked = protocol.check_ground_truth(inputs)
+        checked = {"protocol": protocol.name, "check": settings.ground_truth_check}
+        if settings.ground_truth_check != "off":
+            try:
+                checked.update(protocol.check_ground_truth(inputs))
+                print(f"the ground truth of {a.scene} lines up with its cameras ({protocol.name} protocol): "
+                      + ", ".join(f"{k} {v:.3g}" for k, v in checked.items() if isinstance(v, float)))
+            except Eve3dError as e:
+                if settings.ground_truth_check == "error":
+                    raise Eve3dError(f"{e} (evaluate.ground_truth_check: warn or off goes on regardless)") from None
+                print(f"warning: {e}", file=sys.stderr)
+                checked["warning"] = str(e)
         with atomic_path(Path(a.out)) as tmp:
             tmp.write_text(json.dumps(checked, indent=2))
-        print(f"the ground truth of {a.scene} lines up with its cameras ({protocol.name} protocol): "
-              + ", ".join(f"{k} {v:.3g}" for k, v in checked.items() if isinstance(v, float)))
         return
     if reconstruction is None:
         flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
@@ -197,8 +205,6 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     with atomic_path(Path(a.out)) as tmp:
         tmp.write_text(json.dumps({RECORD: EVALUATION, **metrics}, indent=2))
     print(format_table([metrics]))
-
-
 
 
 def _cmd_bench(a: argparse.Namespace) -> None:

@@ -78,8 +78,9 @@ def summary_page(rows: list[dict], published: list[dict], title: str) -> str:
     columns = [c for c in SUMMARY_COLUMNS if any(r.get(c) not in (None, "") for r in rows)]
     mean_columns = ["source", "method", "scenes"] + [m for m, _ in METRICS_CHARTED if any(
         r.get(m) is not None for r in means(rows) + published)]
-    note = ("<p>Published rows: the Eve3D paper's figures (GPU, half resolution; DESIGN §4), means over the "
-            "benchmark's scenes.</p>" if published else "")
+    note = ("<p>Published rows: the Eve3D paper's figures (GPU, half resolution; DESIGN §4), means over all of "
+            "the benchmark's scenes; this run's means are over its own scenes (`scenes`), which may be fewer.</p>"
+            if published else "")
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>{STYLE}</head>"
             f"<body><h2>{html.escape(title)}</h2>{_table('summary', columns, rows)}"
             f"<h3>Means</h3>{_table('means', mean_columns, means(rows) + published)}{note}</body></html>")
@@ -127,6 +128,7 @@ def read_runtimes(layout: Layout) -> list[dict]:
 
 
 def runtimes_page(rows: list[dict]) -> str:
+    """The table of every job's wall seconds, and each scene's total."""
     total = [{"scene": s, "job": "all jobs", "seconds": sum(r["seconds"] for r in rows if r["scene"] == s)}
              for s in sorted({r["scene"] for r in rows})]
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>Run times</title>{STYLE}</head><body>"

@@ -681,6 +681,10 @@ class EvalSettings(Checked):
     """tnt: the points of a mesh that are scored: ``vertices`` (as the official toolbox, which
     reads a mesh PLY as a point cloud) or ``sampled`` (the vertices plus about one area sample
     per (τ/2)², so a mesh coarser than τ/2 is not charged for its vertex spacing)."""
+    ground_truth_check: str = setting("error", choices=("error", "warn", "off"))
+    """dtu, tnt: the check, before any training, that the ground truth lines up with the
+    cameras: ``error`` stops the run, ``warn`` prints what it found and goes on, ``off`` skips
+    it. Its bounds were set on miniature downloads, not yet on the real ones."""
     dtu_density: float = setting(0.2, gt=0)
     """DTU: sampling density and thinning radius in mm."""
     dtu_max_dist: float = setting(20.0, gt=0)

@@ -45,7 +45,8 @@ def dtu_scale_mat() -> np.ndarray:
     return s
 
 
-def write_dtu_ground_truth(scene: Scene, root: Path, scan: int, scale_mat: np.ndarray, points: int = 400_000) -> dict:
+def write_dtu_ground_truth(scene: Scene, root: Path, scan: int, scale_mat: np.ndarray,
+                           points: int = 400_000) -> dict[str, Path]:
     """DTU's official evaluation files of ``scene`` as the download lays them out under
     ``root`` (``Points/stl/stl{scan:03d}_total.ply``, ``ObsMask/ObsMask{scan}_10.mat``,
     ``ObsMask/Plane{scan}.mat``), in 'mm' = scale_mat·x: like a structured-light scan, the
@@ -54,13 +55,13 @@ def write_dtu_ground_truth(scene: Scene, root: Path, scan: int, scale_mat: np.nd
     import open3d as o3d
     from scipy.io import savemat
 
+    from eve3d.benchmarks import dtu_files
     from eve3d.evaluate.common import read_mesh
     from eve3d.evaluate.synthetic import visible_surface_samples
 
     stl, _ = visible_surface_samples(read_mesh(scene.gt_mesh), scene.cameras, points, 1, np.random.default_rng(0))
     stl = stl @ scale_mat[:3, :3].T + scale_mat[:3, 3]
-    files = {"stl": root / "Points" / "stl" / f"stl{scan:03d}_total.ply",
-             "obs_mask": root / "ObsMask" / f"ObsMask{scan}_10.mat", "plane": root / "ObsMask" / f"Plane{scan}.mat"}
+    files = dtu_files(root, f"scan{scan}")
     for path in files.values():
         path.parent.mkdir(parents=True, exist_ok=True)
     o3d.io.write_point_cloud(str(files["stl"]), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(stl)))
@@ -192,8 +193,8 @@ def write_mipnerf360_release(scene: Scene, root: Path, name: str = "room") -> Pa
         cameras.append(replace(cam, name=image, image_path=folder / "images" / image))
     write_colmap(Scene(root=folder, cameras=cameras, points=scene.points, point_colors=scene.point_colors,
                        point_views=scene.point_views), folder / "sparse" / "0")
-    bounds = np.array([[cam.R.T.ravel().tolist() + cam.center.tolist()] for cam in cameras]).reshape(len(cameras), -1)
-    np.save(folder / "poses_bounds.npy", np.hstack([bounds, np.zeros((len(cameras), 5))]))
+    # LLFF's poses and depth bounds (N×17): part of the layout, never read here; a placeholder
+    np.save(folder / "poses_bounds.npy", np.zeros((len(cameras), 17)))
     return folder
 
 

@@ -66,7 +66,7 @@ def test_benchmark_configs_list_the_benchmarks_scenes():
         resolve_config(yaml.safe_load((REPO / "config/benchmarks/dtu.yaml").read_text()), "dtu.yaml")
 
 
-def test_a_stand_in_download_runs_some_scenes_of_a_config(tmp_path):
+def test_a_stand_in_download_and_only_some_scenes_of_a_config(tmp_path):
     """`eve3d bench standin` writes one scan as the download lays it out; `only` picks the
     scans a user has, and without it the first missing one is named."""
     r = run_cli("bench", "standin", "dtu", tmp_path / "DTU", "--views", "6", "--width", "96", "--height", "72")
@@ -109,6 +109,21 @@ def test_the_2dgs_dtu_layout_reads_cropped_photos_and_full_size_masks(downloads,
         assert np.allclose(cam.K[:2, 2], truth.K[:2, 2] - 4)
 
 
+def test_the_released_mipnerf360_pyramid_is_read(downloads, tmp_path):
+    """A view trained at 1/2 size is read from the release's images_2 (same file name), not
+    decoded at full size and resized."""
+    import cv2
+
+    from eve3d.photos import read_view
+
+    root = tmp_path / "360"
+    shutil.copytree(downloads["mipnerf360"], root)
+    cam = load_scene(root / "room").cameras[0]
+    assert cam.name == "DSC00000.JPG" and (cam.width, cam.height) == (128, 96)
+    cv2.imwrite(str(root / "room/images_2/DSC00000.JPG"), np.full((48, 64, 3), (30, 60, 90), np.uint8))
+    assert np.abs(read_view(cam.scaled(0.5)).astype(int) - (90, 60, 30)).max() <= 2   # RGB of the marked level
+
+
 def test_a_misplaced_obsmask_is_named(downloads, tmp_path):
     root = tmp_path / "DTU"
     shutil.copytree(downloads["dtu"], root)
@@ -141,6 +156,9 @@ def test_a_stl_in_another_frame_stops_the_check(downloads, tmp_path):
     o3d.io.write_point_cloud(str(files["gt"]), cloud)
     r = run_cli(*args)
     assert r.returncode == 2 and f"{files['gt']}: does not line up with {scan}" in r.stderr, r.stderr
+    r = run_cli(*args, "--set", "evaluate.ground_truth_check=warn")   # a user who knows better goes on
+    assert r.returncode == 0 and f"warning: {files['gt']}: does not line up" in r.stderr
+    assert "does not line up" in json.loads((tmp_path / "check.json").read_text())["warning"]
 
 
 @pytest.mark.parametrize("mistake", ["swapped", "training log"])
@@ -158,8 +176,8 @@ def test_a_wrong_trajectory_stops_before_training(downloads, object_views, tmp_p
         expected = f"{log}: its cameras are not the scene's images in their order"
     else:
         for pose, cam in zip(poses, object_views.cameras):
-            pose[:3, 3] = cam.center
-        expected = f"the scene's SfM points, aligned by {log} and this transform, do not lie on"
+            pose[:3, :3], pose[:3, 3] = cam.R.T, cam.center   # camera-to-world in the scene's own frame
+        expected = f"{root}/Barn/Barn_trans.txt: the scene's SfM points, aligned by {log} and this transform, do not lie"
     write_log(log, poses)
     cfg = tmp_path / "config.yaml"
     cfg.write_text(yaml.safe_dump(benchmark_config("tnt", root, tmp_path / "results", **TINY)))

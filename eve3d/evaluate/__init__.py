@@ -96,10 +96,21 @@ toolbox on open3d 0.9 and later ports."""
 
 def library_versions() -> dict[str, str]:
     """The versions of :data:`SCORING_LIBRARIES` that this process has loaded (those that
-    took part in a score)."""
+    took part in a score), and the commit of this checkout when it is a git one
+    (``eve3d_commit``, ``+dirty`` with uncommitted changes)."""
+    import subprocess
     import sys
 
-    return {name: sys.modules[name].__version__ for name in SCORING_LIBRARIES if name in sys.modules}
+    versions = {name: sys.modules[name].__version__ for name in SCORING_LIBRARIES if name in sys.modules}
+    repo = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "-C", str(repo), "describe", "--always", "--dirty=+dirty", "--abbrev=12"],
+                                capture_output=True, text=True, timeout=10)
+        if commit.returncode == 0 and commit.stdout.strip():
+            versions["eve3d_commit"] = commit.stdout.strip()
+    except (OSError, subprocess.TimeoutExpired):
+        pass  # no git: the package version stands alone
+    return versions
 
 
 PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from eve3d.evaluate import EvalInputs
 from eve3d.evaluate.common import nearest_distances, read_mesh, write_error_maps
-from eve3d.scene import Eve3dError, Scene
+from eve3d.scene import Camera, Eve3dError, Scene
 
 MASK_DILATION = 24
 """Radius (px) of the disk the object masks are dilated by before culling."""
@@ -33,7 +33,7 @@ the right STL scored 1.0, the same STL moved by 10 % of the object's size 0.82, 
 0.47 (another scan's STL, or cameras of another frame, lie further off still)."""
 
 
-def mask_cameras(scene: Scene) -> list:
+def mask_cameras(scene: Scene) -> list[Camera]:
     """The cameras the object masks were drawn for (``io.dtu``), each with its mask."""
     cameras = scene.extras.get("mask_cameras", scene.cameras)
     if any(cam.mask_path is None for cam in cameras):
@@ -41,7 +41,7 @@ def mask_cameras(scene: Scene) -> list:
     return cameras
 
 
-def on_mask(cam, points: np.ndarray, dilation: int = MASK_DILATION) -> tuple[np.ndarray, np.ndarray]:
+def on_mask(cam: Camera, points: np.ndarray, dilation: int = MASK_DILATION) -> tuple[np.ndarray, np.ndarray]:
     """Which ``points`` fall in ``cam``'s image (in front of it), and of those which fall on
     a pixel of its object mask dilated by a disk of ``dilation`` px."""
     import cv2
@@ -73,7 +73,7 @@ def cull_by_masks(mesh, scene: Scene, dilation: int = MASK_DILATION):
     return mesh
 
 
-def read_ground_truth(inputs: EvalInputs):
+def read_ground_truth(inputs: EvalInputs) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, float], np.ndarray]:
     """The STL points, the ObsMask (mask, bounding box, resolution) and the ground plane,
     with an error naming the file that cannot be read."""
     import open3d as o3d

@@ -82,8 +82,9 @@ def check_cameras(scene: Scene) -> np.ndarray:
     if len(reference) != len(scene.cameras):
         raise Eve3dError(
             f"{scene.extras.get('trajectory', 'the reference trajectory')}: has {len(reference)} cameras, "
-            f"the reconstruction {len(scene.cameras)}; the alignment pairs them one to one (the "
-            f"toolbox's >1600-frame mapping-file branch is not supported)")
+            f"the reconstruction {len(scene.cameras)}; the alignment pairs them one to one. Is it the official "
+            f"evaluation trajectory of {scene.extras.get('name')}, not a training log of another SfM run? (The "
+            f"toolbox's >1600-frame mapping-file branch is not supported.)")
     return reference
 
 
@@ -200,12 +201,13 @@ def reconstruction_points(mesh, mode: str, tau: float, samples: int, rng: np.ran
 MAX_TRAJECTORY_RESIDUAL = 0.05
 """The ground-truth check's bound on the trajectory: after the best similarity, our camera
 centres lie within this share of the cameras' spread (RMS) of the log's."""
-SPARSE_NEAR = 5.0
+SPARSE_NEAR = 10.0
 """... and at least :data:`MIN_SPARSE_NEAR` of the scene's SfM points inside the crop lie
-within this many τ of the GT points. On the miniature T&T scene of the tests the right files
-score 1.0 (exact sparse points) and a training log in the scene's own frame 0.27 (a large
-ground plane catches some points by chance); real SfM points are noisier, whence 0.5. Not
-yet measured on the real downloads."""
+within this many τ of the GT points (no ICP refines this rough alignment yet, and real SfM
+points are noisy). On the miniature T&T scene of the tests the right files score 1.0 and a
+training log in the scene's own frame 0.40 (0.27 within 5τ: a large ground plane catches some
+points by chance). Not yet measured on the real downloads: ``evaluate.ground_truth_check:
+warn`` goes on past it."""
 MIN_SPARSE_NEAR = 0.5
 
 
@@ -243,7 +245,7 @@ def check_alignment(inputs: EvalInputs) -> dict:
     near = float(np.mean(distances < SPARSE_NEAR * tau)) if len(distances) >= 10 else 0.0
     if near < MIN_SPARSE_NEAR:
         raise Eve3dError(
-            f"{extras['alignment']}: the scene's SfM points, aligned by {log} and this transform, do not lie on "
+            f"{extras['trans']}: the scene's SfM points, aligned by {log} and this transform, do not lie on "
             f"{extras['gt_points']}: {len(distances)} fall inside the crop {extras['crop']}, {near:.0%} of them within "
             f"{SPARSE_NEAR:g}τ of the GT (at least {MIN_SPARSE_NEAR:.0%} expected). Is {log} the official evaluation "
             f"trajectory (not a training log of another SfM run of the same images), and are the files this scene's?")

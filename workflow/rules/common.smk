@@ -227,8 +227,16 @@ def ground_truth_args(wildcards, input):
 
 def ground_truth_checked(wildcards):
     """The check that the scene's ground truth lines up with its cameras, for protocols that
-    have one: training waits for it, so a misplaced file stops the run first."""
-    return [LAYOUT.ground_truth_check(wildcards.scene)] if PROTOCOL[wildcards.scene].check else []
+    have one: training waits for it, so a misplaced file stops the run first. Ancient: a
+    rerun of the check (an evaluate setting changed) does not retrain anything."""
+    return [ancient(LAYOUT.ground_truth_check(wildcards.scene))] if PROTOCOL[wildcards.scene].check else []
+
+
+def check_job(wildcards):
+    """The ground-truth check's job config: what it reads of `evaluate` (τ, and whether a
+    failed check stops the run), so that another scoring setting does not rerun it."""
+    settings = evaluate_settings(wildcards.scene)
+    return job_config(evaluate={key: settings[key] for key in ("tau", "ground_truth_check")})
 
 
 def evaluate_inputs(wildcards):

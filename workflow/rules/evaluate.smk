@@ -9,7 +9,7 @@ rule check_ground_truth:
         LAYOUT.ground_truth_check("{scene}"),
     params:
         args=ground_truth_args,
-        config=lambda wc: job_config(evaluate=evaluate_settings(wc.scene)),
+        config=check_job,
     log:
         LAYOUT.log("{scene}", "check_ground_truth"),
     conda:
@@ -63,9 +63,11 @@ rule report_pages:
                         category="4 Run times"),
     params:
         args=report_args,
+        results=LAYOUT.root,
+        out=LAYOUT.report_pages(),
     log:
         LAYOUT.logs() / "report_pages.log",
     conda:
         CONDA_ENV
     shell:
-        "{EVE3D} report --results {LAYOUT.root} --out {LAYOUT.root}/report {params.args} > {log} 2>&1"
+        "{EVE3D} report --results {params.results} --out {params.out} {params.args} > {log} 2>&1"
