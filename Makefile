@@ -7,23 +7,32 @@ JOBS ?= 2
 
 .PHONY: demo test install clean
 
-demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print the table
+REPORT := results/report.html
+
+demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print the table, write the report
 	$(BIN)/snakemake -c$(JOBS) --quiet rules progress --omit-from summary
 	@# the workflow's summary rule prints the table of the results folder the config names;
 	@# rerun it alone (everything else is done) so that the table comes last
 	@$(BIN)/snakemake -c1 --quiet all --forcerun summary
+	@$(BIN)/snakemake -c1 --quiet all --report $(REPORT)
+	@echo "report: $(REPORT) (open it in a browser)"
 
 test: $(STAMP)  ## the test suite
 	$(BIN)/python -m pytest -q
 
 install: $(STAMP)
 
-# open3d needs libusb-1.0 from the system; torch is pinned and installed first, because a
-# loose torch requirement on a machine without it pulls a multi-GB CUDA build.
+# open3d needs libusb-1.0 from the system, the report's browser test Debian's headless
+# Chromium; torch is pinned and installed first, because a loose torch requirement on a
+# machine without it pulls a multi-GB CUDA build.
 $(STAMP): pyproject.toml
-	@ldconfig -p | grep -q libusb-1.0 || { \
-	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0; }
+	@SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	{ ldconfig -p | grep -q libusb-1.0 && [ -x /usr/lib/chromium/chromium-headless-shell ]; } || \
+	  $$SUDO apt-get update -qq; \
+	ldconfig -p | grep -q libusb-1.0 || $$SUDO apt-get install -y -qq libusb-1.0-0; \
+	[ -x /usr/lib/chromium/chromium-headless-shell ] || \
+	  $$SUDO apt-get install -y -qq --no-install-recommends chromium-headless-shell || \
+	  echo "warning: no chromium-headless-shell (Debian): the report's browser test will fail" >&2
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q torch==2.13.0

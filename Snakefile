@@ -1,5 +1,6 @@
 # eve3d workflow: `snakemake -c2` runs every scene of config/config.yaml; see README.md.
 configfile: "config/config.yaml"
+report: "workflow/report/workflow.rst"
 
 
 include: "workflow/rules/common.smk"
@@ -14,4 +15,5 @@ rule all:
     input:
         LAYOUT.summary(),
         mesh_files(),
+        LAYOUT.report_pages() / "summary.html",
     default_target: True

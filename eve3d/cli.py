@@ -10,6 +10,7 @@ from pathlib import Path
 from collections.abc import Callable
 from typing import Any
 
+from eve3d.report import SUMMARY_COLUMNS
 from eve3d.scene import Eve3dError
 
 
@@ -163,10 +164,27 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol",
                             lambda key: getattr(a, flags[key]) is not None)
     reconstruction = a.model if protocol.scores == "model" else a.mesh
+    optional = lambda v: Path(v) if v else None  # noqa: E731
+    if a.check:
+        inputs = EvalInputs(scene, None, Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
+                            plane=optional(a.plane), settings=settings)
+        checked = {"protocol": protocol.name, "check": settings.ground_truth_check}
+        if settings.ground_truth_check != "off":
+            try:
+                checked.update(protocol.check_ground_truth(inputs))
+                print(f"the ground truth of {a.scene} lines up with its cameras ({protocol.name} protocol): "
+                      + ", ".join(f"{k} {v:.3g}" for k, v in checked.items() if isinstance(v, float)))
+            except Eve3dError as e:
+                if settings.ground_truth_check == "error":
+                    raise Eve3dError(f"{e} (evaluate.ground_truth_check: warn or off goes on regardless)") from None
+                print(f"warning: {e}", file=sys.stderr)
+                checked["warning"] = str(e)
+        with atomic_path(Path(a.out)) as tmp:
+            tmp.write_text(json.dumps(checked, indent=2))
+        return
     if reconstruction is None:
         flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
         raise Eve3dError(f"the {protocol.name} protocol scores a {protocol.scores}: give {flag}")
-    optional = lambda v: Path(v) if v else None  # noqa: E731
     inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
                         plane=optional(a.plane), settings=settings)
     if bool(a.depth) != bool(a.exact_depth):
@@ -187,10 +205,6 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     with atomic_path(Path(a.out)) as tmp:
         tmp.write_text(json.dumps({RECORD: EVALUATION, **metrics}, indent=2))
     print(format_table([metrics]))
-
-
-SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "accuracy", "completeness", "chamfer",
-                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "psnr", "ssim")
 
 
 def _cmd_bench(a: argparse.Namespace) -> None:
@@ -272,6 +286,24 @@ def _cmd_bench_methods(a: argparse.Namespace) -> None:
     print(json.dumps(report, indent=2) if a.json else bench.format_methods_report(report))
 
 
+def _cmd_bench_standin(a: argparse.Namespace) -> None:
+    import tempfile
+
+    from eve3d.io import load_scene
+    from eve3d.standin import STANDIN_SCENE, write_standin
+    from eve3d.synth import generate
+
+    root = Path(a.root)
+    if (root / STANDIN_SCENE[a.benchmark]).exists():
+        raise Eve3dError(f"{root / STANDIN_SCENE[a.benchmark]}: already there; give an empty folder")
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = load_scene(generate("object", Path(tmp) / "object", views=a.views, width=a.width, height=a.height))
+        folder = write_standin(a.benchmark, scene, root)
+    print(f"wrote a stand-in {STANDIN_SCENE[a.benchmark]} ({a.views} views, {a.width}×{a.height}) to {folder}; run it:\n"
+          f"  snakemake -c2 --configfile config/benchmarks/{a.benchmark}.yaml --replace-workflow-config --config root={root} "
+          f"'only=[{STANDIN_SCENE[a.benchmark]}]'")
+
+
 def _cmd_bench_real(a: argparse.Namespace) -> None:
     from eve3d import bench
 
@@ -325,6 +357,24 @@ def _cmd_summary(a: argparse.Namespace) -> None:
         _write_csv(out.with_name(f"{out.stem}_views.csv"), VIEW_COLUMNS, view_rows)
         print("\nheld-out views of the training stages (at the training resolution)")
         print(format_table(view_rows, VIEW_COLUMNS))
+
+
+def _cmd_report(a: argparse.Namespace) -> None:
+    from eve3d.layout import Layout
+    from eve3d.report import write_report
+
+    datasets = {}
+    for item in a.dataset:
+        scene, sep, folder = item.partition("=")
+        if not sep:
+            raise Eve3dError(f"--dataset {item!r}: expected SCENE=FOLDER")
+        datasets[scene] = Path(folder)
+    from eve3d.settings import StereoSettings
+
+    config = _config(a)
+    backend = _settings(a, StereoSettings, "stereo", config).backend
+    written = write_report(Layout(a.results), Path(a.out), datasets, backend, config.get("benchmark"))
+    print(f"wrote {len(written)} report pages to {a.out}")
 
 
 def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
@@ -416,6 +466,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("metrics", nargs="+")
     s.add_argument("--out", required=True)
     s.set_defaults(func=_cmd_summary)
+    s = sub.add_parser("report", help="the report's pages from a results folder (snakemake --report gathers them)")
+    s.add_argument("--results", required=True, help="the results folder (its summary.csv and benchmark files)")
+    s.add_argument("--out", required=True, help="folder for summary.html, runtimes.html, charts/, scenes/")
+    s.add_argument("--dataset", action="append", default=[], metavar="SCENE=FOLDER",
+                   help="a scene's posed dataset (its first photo heads the scene's sheets); repeat per scene")
+    _config_arguments(s)  # stereo.backend: the priors shown; benchmark: its published figures join the means
+    s.set_defaults(func=_cmd_report)
     _add_bench_parser(sub)
     return p
 
@@ -499,6 +556,9 @@ def _add_mesh_parsers(sub) -> None:
                                    "relative error against --exact-depth (pixels of confidence ≥ mesh.min_confidence) "
                                    "are added to the metrics")
     s.add_argument("--exact-depth", help="exact depth maps of the same views (results/SCENE/priors/oracle)")
+    s.add_argument("--check", action="store_true",
+                   help="no reconstruction: check that the ground truth lines up with the scene's cameras (dtu, "
+                        "tnt), write what was measured to --out, fail with a message naming the file otherwise")
     s.add_argument("--scene-name")
     s.add_argument("--method")
 
@@ -540,6 +600,16 @@ def _add_bench_parser(sub) -> None:
     ev.add_argument("--gt", help="GT mesh of the given meshes")
     ev.add_argument("--json", action="store_true", help="machine-readable output")
     ev.set_defaults(func=_cmd_bench_evaluate)
+    from eve3d.benchmarks import BENCHMARKS
+
+    sd = what.add_parser("standin", help="a generated object written as a benchmark's download lays out one scene, "
+                                         "with its ground-truth files: try or time a benchmark config without it")
+    sd.add_argument("benchmark", choices=list(BENCHMARKS))
+    sd.add_argument("root", help="the download's folder to write (the config's root)")
+    sd.add_argument("--views", type=int, default=49, help="photos (DTU has 49; T&T 150-1100; Mip-NeRF 360 125-311)")
+    sd.add_argument("--width", type=int, default=1600, help="photo width (DTU 1600; T&T 1920; Mip-NeRF 360 ~5000)")
+    sd.add_argument("--height", type=int, default=1200)
+    sd.set_defaults(func=_cmd_bench_standin)
     for name, func, config, help in [
             ("methods", _cmd_bench_methods, "methods", "run every method on the generated object and room (Snakemake) "
                                                         "and print scores, times and the priors' accuracy"),

@@ -67,8 +67,16 @@ def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEM
     if errors:
         lines = [f"{'.'.join(map(str, e.absolute_path)) or '(top level)'}: {e.message}" for e in errors]
         raise Eve3dError(f"{source}: invalid configuration:\n  " + "\n  ".join(lines))
+    from eve3d.benchmarks import expand_benchmark
     from eve3d.synth import KINDS
 
+    if config.get("only") is not None:  # run some of the scenes (a benchmark's downloaded ones)
+        unknown = [s for s in config["only"] if s not in config["scenes"]]
+        if unknown:
+            raise Eve3dError(f"{source}: only: unknown scene(s) {', '.join(map(str, unknown))} "
+                             f"(scenes: {', '.join(config['scenes'])})")
+        config["scenes"] = {s: config["scenes"][s] for s in config["only"]}
+    config = expand_benchmark(config, source)
     for name, scene in config["scenes"].items():
         if "synthetic" not in scene and "path" not in scene:
             raise Eve3dError(f"{source}: scenes.{name}: give either 'synthetic' (generate it) or 'path' (a dataset)")
@@ -136,6 +144,13 @@ def scene_protocol(name: str, scene: dict):
                 ", a GT mesh in the dataset's frame (or protocol: nvs to score held-out views)"
                 if key == "gt_mesh" else ""))
     return protocol
+
+
+def scene_sections(config: Mapping, scene: str) -> dict:
+    """``config`` as the jobs of ``scene`` read it: the scene's own ``train`` keys (a
+    benchmark's per-scene training resolution) merged over the ``train`` section."""
+    own = config["scenes"][scene].get("train")
+    return {**config, "train": deep_merge(config.get("train") or {}, own)} if own else dict(config)
 
 
 def load_config(path: str | Path) -> dict:

@@ -5,9 +5,11 @@ and ``eve3d bench methods`` all ask a :class:`Layout` for their paths, and the s
 that write fixed names inside their output folder use the file-name constants below::
 
     {results}/summary.csv                     all scenes × methods (summary_views.csv beside it)
+    {results}/report/                         the report's pages; {results}/report.html (snakemake --report)
     {results}/logs/{scene}/{rule}[_{what}].log
     {results}/benchmarks/{scene}/{rule}[_{what}].tsv
     {results}/{scene}/input/                  generated synthetic dataset
+    {results}/{scene}/ground_truth_check.json the ground truth lines up (dtu, tnt; before training)
     {results}/{scene}/sfm/                    posed dataset of an image-only one
     {results}/{scene}/stereo/                 virtual right views
     {results}/{scene}/priors/{backend}/       depth priors
@@ -47,6 +49,9 @@ HELD_OUT_DIR = "held_out"
 METRICS_FILE = "metrics.json"
 """An evaluation record (``"record": "evaluation"``)."""
 SUMMARY_FILE = "summary.csv"
+GROUND_TRUTH_CHECK_FILE = "ground_truth_check.json"
+REPORT_DIR = "report"
+REPORT_FILE = "report.html"
 
 PRETRAIN = "pretrain"
 """The pretrain stage's folder, beside the methods' folders of a scene."""
@@ -78,6 +83,11 @@ class Layout:
     def generated_gt_mesh(self, scene: str) -> Path:
         """The GT mesh inside a generated dataset (eve3d.synth writes it there)."""
         return self.input(scene) / "gt" / "mesh.ply"
+
+    def ground_truth_check(self, scene: str) -> Path:
+        """What the check that a benchmark scene's ground truth lines up with its cameras
+        measured (written before any training)."""
+        return self.scene(scene) / GROUND_TRUTH_CHECK_FILE
 
     def sfm(self, scene: str) -> Path:
         """The posed dataset that SfM makes of an image-only one."""
@@ -139,6 +149,14 @@ class Layout:
 
     def summary(self) -> Path:
         return self.root / SUMMARY_FILE
+
+    def report_pages(self) -> Path:
+        """The pages ``eve3d report`` writes for Snakemake's ``--report`` (``eve3d.report``)."""
+        return self.root / REPORT_DIR
+
+    def report(self) -> Path:
+        """The self-contained HTML report ``snakemake --report`` writes (README)."""
+        return self.root / REPORT_FILE
 
 
 def job_name(rule: str, what: str | None = None) -> str:

@@ -134,11 +134,13 @@ def read_view(cam: Camera) -> np.ndarray:
         raise Eve3dError(f"view {cam.view_id} has no image")
     source = cam.image_path
     for k in reversed(PYRAMID_LEVELS):
-        level = pyramid_dir(source.parent, k) / f"{source.stem}.png"
-        if level.is_file():
+        # ours ({stem}.png), or a released pyramid's copy of the same file (Mip-NeRF 360's images_4/DSC….JPG)
+        level = next((p for p in (pyramid_dir(source.parent, k) / name for name in (f"{source.stem}.png", source.name))
+                      if p.is_file()), None)
+        if level is not None:
             with Image.open(level) as im:  # the header only
                 w, h = im.size
-            if w >= cam.width and h >= cam.height:
+            if w >= cam.width - 1 and h >= cam.height - 1:  # a released level may round its size down
                 source = level
                 break
     rgb = read_image(source)

@@ -29,6 +29,9 @@ SGM_MODES = {"hh": "STEREO_SGBM_MODE_HH", "hh4": "STEREO_SGBM_MODE_HH4", "3way":
 (``hh4``), or the single-pass variants (``3way``, ``sgbm``)."""
 BASELINE_MODES = ("disparity", "radius")
 MATCHERS = ("exhaustive", "sequential")
+TNT_POINTS = ("vertices", "sampled")
+"""What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
+official toolbox reads a mesh PLY, or the vertices plus area samples."""
 PRIOR_BACKENDS = ("sgbm", "onnx", "oracle")
 """Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs, a
 stereo network exported to ONNX, or the exact depth of a scene with a known mesh."""
@@ -672,7 +675,16 @@ class EvalSettings(Checked):
     samples: int = setting(500_000, ge=1000)
     """Synthetic: surface samples scored on each of the reconstruction (inside the crop) and
     the visible GT; with exact point-to-triangle distances the count sets only the sampling
-    noise and the memory. tnt: at most this many area samples beside the mesh's vertices."""
+    noise and the memory. tnt with ``tnt_points: sampled``: at most this many area samples
+    beside the mesh's vertices."""
+    tnt_points: str = setting("vertices", choices=TNT_POINTS)
+    """tnt: the points of a mesh that are scored: ``vertices`` (as the official toolbox, which
+    reads a mesh PLY as a point cloud) or ``sampled`` (the vertices plus about one area sample
+    per (τ/2)², so a mesh coarser than τ/2 is not charged for its vertex spacing)."""
+    ground_truth_check: str = setting("error", choices=("error", "warn", "off"))
+    """dtu, tnt: the check, before any training, that the ground truth lines up with the
+    cameras: ``error`` stops the run, ``warn`` prints what it found and goes on, ``off`` skips
+    it. Its bounds were set on miniature downloads, not yet on the real ones."""
     dtu_density: float = setting(0.2, gt=0)
     """DTU: sampling density and thinning radius in mm."""
     dtu_max_dist: float = setting(20.0, gt=0)

@@ -3,7 +3,6 @@ imports another test module or conftest: what two modules need lives here."""
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -84,27 +83,68 @@ def stereo_scene(tmp_path: Path, disparity: int, baseline: float = 0.5):
     return scene, lambda: (tmp_path / "stereo" / PAIRS_FILE).write_text(json.dumps(pairs))
 
 
-# -- DTU layout ------------------------------------------------------------------------------
+# -- the report in a browser -----------------------------------------------------------------
 
-def write_dtu_layout(scene, root: Path, scale_mat: np.ndarray) -> None:
-    """Write a scene in the IDR/NeuS DTU layout, its cameras expressed in 'mm' = scale_mat·x."""
-    (root / "image").mkdir(parents=True)
-    (root / "mask").mkdir()
-    inv = np.linalg.inv(scale_mat)
-    arrays = {}
-    for i, cam in enumerate(scene.cameras):
-        shutil.copy(cam.image_path, root / "image" / f"{i:06d}.png")
-        shutil.copy(scene.root / "masks" / cam.name, root / "mask" / f"{i:03d}.png")
-        world_mat = np.eye(4)
-        idr_k = cam.K.copy()
-        idr_k[:2, 2] -= 0.5  # IDR/NeuS put pixel centres at integer coordinates
-        world_mat[:3] = idr_k @ cam.world_to_camera[:3] @ inv  # maps mm points to pixels
-        arrays[f"world_mat_{i}"] = world_mat
-        arrays[f"scale_mat_{i}"] = scale_mat
-    np.savez(root / "cameras.npz", **arrays)
+CHROMIUM = Path("/usr/lib/chromium/chromium-headless-shell")
+"""Debian's chromium-headless-shell (the set-up installs it), driven by Playwright."""
+BENIGN_CONSOLE = ("cdn.tailwindcss.com should not be used in production",)
+"""A warning Snakemake's report logs about its inlined stylesheet framework."""
 
 
-def dtu_scale_mat() -> np.ndarray:
-    s = np.diag([50.0, 50.0, 50.0, 1.0])
-    s[:3, 3] = [10.0, -20.0, 600.0]
-    return s
+def decodes(data_uri: str) -> bool:
+    """Whether the raster image of a ``data:`` URI decodes whole (PIL)."""
+    import base64
+    import io
+
+    from PIL import Image
+
+    head, _, data = data_uri.partition(",")
+    try:
+        with Image.open(io.BytesIO(base64.b64decode(data) if head.endswith(";base64") else data.encode())) as im:
+            im.load()
+        return True
+    except Exception:
+        return False
+
+
+def open_report(report: Path, screenshot: Path | None = None) -> dict:
+    """Load Snakemake's HTML report in headless Chromium and read what a person sees: the
+    rows of the summary page's ``#summary`` table (its cells), how many image results it
+    holds and how many of them failed to decode once shown, and every resource that failed
+    to load, console error, page error or request that left the file."""
+    from playwright.sync_api import expect, sync_playwright
+
+    problems: list[str] = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=["--no-sandbox"])
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        page.on("console", lambda m: m.type == "error" and not m.text.startswith(BENIGN_CONSOLE)
+                and problems.append(f"console: {m.text}"))
+        page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+        page.on("requestfailed", lambda r: problems.append(f"failed: {r.url[:120]} {r.failure}"))
+        page.on("request", lambda r: r.url.startswith("http") and problems.append(f"external: {r.url}"))
+        page.goto(report.resolve().as_uri())
+        expect(page.get_by_text("1 Summary", exact=True)).to_be_visible()  # the app has rendered
+        results = page.evaluate("Object.keys(results).map(p => [p, results[p].mime_type])")
+        summary = next(path for path, mime in results if path.endswith("report/summary.html"))
+        page.evaluate("p => app.setView({content: 'html', contentPath: results[p].data_uri, resultPath: p})", summary)
+        table = page.frame_locator("iframe").locator("table#summary")
+        expect(table).to_be_visible()
+        header = table.locator("thead th").all_inner_texts()
+        rows = [dict(zip(header, row.split("\t"))) for row in table.locator("tbody tr").all_inner_texts()]
+        if screenshot is not None:
+            page.screenshot(path=str(screenshot), full_page=True)
+        images, broken = [path for path, mime in results if mime.startswith("image/")], []
+        for path in images:  # each image shown as the result list's eye button shows it
+            uri = page.evaluate("p => results[p].data_uri", path)
+            page.evaluate("p => app.setView({content: 'img', contentPath: results[p].data_uri, resultPath: p})", path)
+            img = page.locator(f"img[src='{uri}']")
+            expect(img).to_be_visible()
+            shown = img.evaluate("i => i.decode().then(() => i.naturalWidth > 0, () => false)")
+            # A browser shows what it can of a truncated PNG; the embedded bytes must decode whole.
+            if not shown or not decodes(uri):
+                broken.append(path)
+        if screenshot is not None and images:
+            page.screenshot(path=str(screenshot.with_name(screenshot.stem + "_image.png")))
+        browser.close()
+    return {"rows": rows, "images": images, "broken": broken, "problems": problems}

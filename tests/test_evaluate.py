@@ -2,19 +2,19 @@
 import json
 
 import numpy as np
+import scipy
 import pytest
-from scipy.io import savemat
 
 from eve3d.evaluate import PROTOCOLS, EvalInputs
 from eve3d.settings import EvalSettings
-from eve3d.evaluate.common import distance_metrics, mesh_distances, read_mesh
+from eve3d.evaluate.common import distance_metrics, hot_r, mesh_distances, read_mesh
 from eve3d.evaluate.dtu import cull_by_masks
-from eve3d.evaluate.synthetic import visible_surface_samples
 from eve3d.io import load_scene
 from eve3d.raycast import MeshRaycaster, seen_counts
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.synth import object_cameras
-from tests.helpers import dtu_scale_mat, run_cli, write_dtu_layout
+from eve3d.standin import dtu_scale_mat, write_dtu_ground_truth, write_dtu_layout
+from tests.helpers import run_cli
 
 
 def point_triangle_distance(p, a, b, c):
@@ -86,8 +86,14 @@ def test_mesh_displaced_by_delta_scores_delta(tmp_path):
     assert m["accuracy"] == pytest.approx(delta, rel=0.05) and m["completeness"] == pytest.approx(delta, rel=0.05)
     # The bottom of the sphere faces the plate, out of every camera's sight.
     assert 0.9 < m["visible_gt_fraction"] < 0.99
-    assert score(tau=1.5 * delta)["fscore"] > 0.99 and score(tau=0.5 * delta)["fscore"] < 0.01
     assert m["tau_rule"].startswith("0.0025 x visible-GT bounding-box diagonal")
+    # the error maps: every point δ from the other surface, coloured δ/3τ of the way to black
+    for name, count in (("precision", m["n_recon"]), ("recall", m["n_gt"])):
+        cloud = o3d.io.read_point_cloud(str(tmp_path / f"{name}.ply"))
+        assert len(cloud.points) == min(count, 200_000)
+        expected = hot_r(np.array([delta / (3 * m["tau"])]))[0]
+        assert np.mean(np.abs(np.asarray(cloud.colors) - expected).max(axis=1) < 0.05) > 0.95
+    assert score(tau=1.5 * delta)["fscore"] > 0.99 and score(tau=0.5 * delta)["fscore"] < 0.01
 
 
 def test_synthetic_protocol_ignores_unseen_gt_and_crops_far_recon(tmp_path):
@@ -188,22 +194,11 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     write_dtu_layout(object_scene, root, scale)
     scene = load_scene(root)
     gt = read_mesh(object_scene.gt_mesh)
-    # Like a structured-light scan, the STL points cover the surface the cameras see.
-    stl, _ = visible_surface_samples(gt, object_scene.cameras, 400_000, 1, np.random.default_rng(0))
-    stl = stl @ scale[:3, :3].T + scale[:3, 3]
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(stl))
-    o3d.io.write_point_cloud(str(tmp_path / "stl001_total.ply"), cloud)
-    res, lo = 4.0, stl.min(0) - 8
-    shape = np.ceil((stl.max(0) + 8 - lo) / res).astype(int)
-    obs = np.zeros(shape, dtype=np.uint8)
-    idx = np.round((stl - lo) / res).astype(int)
-    obs[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
-    savemat(tmp_path / "ObsMask1_10.mat", {"ObsMask": obs, "BB": np.stack([lo, lo + shape * res]), "Res": res})
-    savemat(tmp_path / "Plane1.mat", {"P": np.array([0, 0, 1.0, -(scale[2, 3] + 0.001 * scale[2, 2])])})
+    files = write_dtu_ground_truth(object_scene, tmp_path, 1, scale)
 
     def score(mesh_path):
-        return PROTOCOLS["dtu"].run(EvalInputs(scene, mesh_path, tmp_path / "m.json", gt=tmp_path / "stl001_total.ply",
-                                               obs_mask=tmp_path / "ObsMask1_10.mat", plane=tmp_path / "Plane1.mat",
+        return PROTOCOLS["dtu"].run(EvalInputs(scene, mesh_path, tmp_path / "m.json", gt=files["stl"],
+                                               obs_mask=files["obs_mask"], plane=files["plane"],
                                                settings=EvalSettings(dtu_density=0.5)))
 
     # The mesh to score: the GT cut into small triangles (mask culling judges vertices),
@@ -215,6 +210,11 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     o3d.io.write_triangle_mesh(str(tmp_path / "seen.ply"), seen)
     exact = score(tmp_path / "seen.ply")
     assert exact["protocol"] == "dtu" and exact["chamfer"] < 0.5 and exact["n_recon"] > 10_000
+    assert len(o3d.io.read_point_cloud(str(tmp_path / "precision.ply")).points) == min(exact["n_recon"], 200_000)
+    assert o3d.io.read_point_cloud(str(tmp_path / "recall.ply")).has_colors()
+    # every score says which evaluator and which library versions produced it
+    assert exact["evaluator"] == "eve3d.evaluate.dtu.evaluate_dtu"
+    assert exact["versions"]["open3d"] == o3d.__version__ and exact["versions"]["scipy"] == scipy.__version__
     shifted = seen.translate([0, 0, 0.02])  # 1 mm in DTU units
     o3d.io.write_triangle_mesh(str(tmp_path / "shifted.ply"), shifted)
     moved = score(tmp_path / "shifted.ply")

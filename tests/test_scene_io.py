@@ -9,7 +9,7 @@ from eve3d.io import load_scene
 from eve3d.io.colmap import read_colmap, write_colmap
 from eve3d.io.dtu import decompose_projection
 from eve3d.scene import Camera, Scene, similarity_fit
-from tests.helpers import dtu_scale_mat, write_dtu_layout
+from eve3d.standin import dtu_scale_mat, write_dtu_layout
 
 
 @pytest.mark.parametrize("binary", [True, False])

@@ -177,7 +177,7 @@ def test_the_workflow_passes_each_job_its_sections_as_one_argument(tmp_path):
     assert len(commands) >= 10
     reads = {"synth": {"synthetic"}, "stereo-depth": {"stereo"}, "stereo-render": {"stereo", "pretrain"},
              "pretrain": {"train", "pretrain"}, "joint": {"train", "joint"}, "mesh": {"mesh"},
-             "evaluate": {"evaluate", "mesh"}}
+             "evaluate": {"evaluate", "mesh"}, "report": {"stereo"}}
     for line in commands:
         argv = shlex.split(line.split(" -m eve3d ", 1)[1].split(" > ")[0])
         assert argv.count("--config") == 1, line
@@ -186,4 +186,4 @@ def test_the_workflow_passes_each_job_its_sections_as_one_argument(tmp_path):
         flags = [x for x in argv if x.startswith("--")]
         assert set(flags) <= {"--config", "--scene", "--out", "--model", "--depth", "--mesh", "--gt", "--gt-mesh",
                               "--stereo", "--priors", "--method", "--backend", "--protocol", "--exact-depth",
-                              "--scene-name", "--kind"}, line
+                              "--scene-name", "--kind", "--results", "--dataset"}, line

@@ -12,7 +12,8 @@ from eve3d.io import load_scene
 from eve3d.io.colmap import write_colmap
 from eve3d.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout
 from eve3d.synth import generate
-from tests.helpers import REPO, dtu_scale_mat, run_cli, snakemake, write_config, write_dtu_layout
+from eve3d.standin import dtu_scale_mat, write_dtu_layout
+from tests.helpers import REPO, run_cli, snakemake, write_config
 
 # -- what each rule writes ---------------------------------------------------------------------
 
@@ -303,6 +304,9 @@ def test_dry_run_of_dtu_and_nvs_scenes(tmp_path, object_scene, object_dataset):
     out = r.stdout + r.stderr
     assert r.returncode == 0, out[-3000:]
     assert "scan1/oracle" not in out and "views/oracle" not in out and "views/stereo-tsdf" not in out
-    assert f"--protocol dtu --mesh {tmp_path}/results/scan1/pgsr/mesh.ply --gt {dtu['stl']}" in out
+    assert f"--protocol dtu --gt {dtu['stl']} --obs-mask {dtu['obs_mask']} --plane {dtu['plane']} --mesh " \
+           f"{tmp_path}/results/scan1/pgsr/mesh.ply" in out
+    # before any training, the check that the ground truth lines up with the cameras
+    assert f"evaluate --check --scene {scan} --out {tmp_path}/results/scan1/ground_truth_check.json --protocol dtu" in out
     assert f"--protocol nvs --model {tmp_path}/results/views/pgsr/point_cloud.ply" in out
     assert '\\"holdout\\": 8' in out or '"holdout": 8' in out

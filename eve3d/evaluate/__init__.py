@@ -28,8 +28,9 @@ class EvalInputs:
     """What one evaluation job is given; each protocol names the fields it needs."""
 
     scene: Scene
-    reconstruction: Path
-    """The mesh (``mesh.ply``) or, for protocols that score renderings, the trained model."""
+    reconstruction: Path | None
+    """The mesh (``mesh.ply``) or, for protocols that score renderings, the trained model;
+    None for a ground-truth check (:meth:`Protocol.check_ground_truth`)."""
     out: Path
     """``metrics.json``; protocols with more artefacts write them beside it."""
     gt: Path | None = None
@@ -60,8 +61,20 @@ class Protocol:
     cannot be scored."""
     joint_settings: dict = field(default_factory=dict)
     """What the protocol asks of the joint stage's training (nvs: views held out)."""
+    check: str = ""
+    """``module:function`` that checks, before any training, that the ground truth lines up
+    with the scene's cameras (raises :class:`Eve3dError` naming the file; returns what it
+    measured); empty: nothing to check."""
 
     def run(self, inputs: EvalInputs) -> dict:
+        """Score ``inputs.reconstruction``."""
+        return self._call(self.entry, inputs)
+
+    def check_ground_truth(self, inputs: EvalInputs) -> dict:
+        """The :attr:`check` of ``inputs`` (no reconstruction needed)."""
+        return self._call(self.check, inputs) if self.check else {"protocol": self.name}
+
+    def _call(self, entry: str, inputs: EvalInputs) -> dict:
         missing = [name for name in self.config_inputs if getattr(inputs, name) is None]
         if missing:
             flags = ", ".join(map(flag, missing))
@@ -70,9 +83,34 @@ class Protocol:
         if self.formats and fmt not in self.formats:
             raise Eve3dError(f"{inputs.scene.root}: the {self.name} protocol needs a {' or '.join(self.formats)} "
                              f"dataset, this one is {fmt}")
-        module, function = self.entry.split(":")
+        module, function = entry.split(":")
         metrics = getattr(importlib.import_module(f"eve3d.evaluate.{module}"), function)(inputs)
-        return {"protocol": self.name, **metrics}
+        return {"protocol": self.name, **metrics, "evaluator": f"eve3d.evaluate.{module}.{function}",
+                "versions": library_versions()}
+
+
+SCORING_LIBRARIES = ("eve3d", "open3d", "numpy", "scipy", "torch")
+"""Libraries whose versions a score records: published T&T figures differ between the
+toolbox on open3d 0.9 and later ports."""
+
+
+def library_versions() -> dict[str, str]:
+    """The versions of :data:`SCORING_LIBRARIES` that this process has loaded (those that
+    took part in a score), and the commit of this checkout when it is a git one
+    (``eve3d_commit``, ``+dirty`` with uncommitted changes)."""
+    import subprocess
+    import sys
+
+    versions = {name: sys.modules[name].__version__ for name in SCORING_LIBRARIES if name in sys.modules}
+    repo = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "-C", str(repo), "describe", "--always", "--dirty=+dirty", "--abbrev=12"],
+                                capture_output=True, text=True, timeout=10)
+        if commit.returncode == 0 and commit.stdout.strip():
+            versions["eve3d_commit"] = commit.stdout.strip()
+    except (OSError, subprocess.TimeoutExpired):
+        pass  # no git: the package version stands alone
+    return versions
 
 
 PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (
@@ -80,9 +118,9 @@ PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (
              "mesh", "synthetic:evaluate_synthetic", {"gt": "gt_mesh"}, own_poses=True),
     Protocol("dtu", "DTUeval-python: mask culling, 0.2 mm sampling, ObsMask crop, Chamfer in mm",
              "mesh", "dtu:evaluate_dtu", {"gt": "dtu.stl", "obs_mask": "dtu.obs_mask", "plane": "dtu.plane"},
-             formats=("dtu",)),
+             formats=("dtu",), check="dtu:check_alignment"),
     Protocol("tnt", "Tanks and Temples toolbox: trajectory alignment, ICP, polygon crop, F-score at τ",
-             "mesh", "tnt:evaluate_tnt", formats=("tnt",), own_poses=True),
+             "mesh", "tnt:evaluate_tnt", formats=("tnt",), own_poses=True, check="tnt:check_alignment"),
     Protocol("nvs", "held-out views (every 8th, Mip-NeRF 360): PSNR and SSIM of the rendered model",
              "model", "nvs:evaluate_views", joint_settings={"holdout": 8}),
 )}

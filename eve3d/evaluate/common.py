@@ -63,3 +63,41 @@ def distance_metrics(d_recon_to_gt: np.ndarray, d_gt_to_recon: np.ndarray, tau: 
     chamfer = None if accuracy is None or completeness is None else (accuracy + completeness) / 2
     return {"accuracy": accuracy, "completeness": completeness, "chamfer": chamfer,
             "precision": precision, "recall": recall, "fscore": fscore(precision, recall)}
+
+
+COLOUR_RANGE = 3.0
+"""Error maps colour distances from 0 (white) to 3τ and beyond (black), as the T&T toolbox."""
+ERROR_MAP_POINTS = 200_000
+"""Points written per error map at most (a uniform subset of those scored): enough to see
+where a surface is off, 5 MB per file."""
+_HOT = ((0.0, 0.365079, 1.0), (0.0416, 1.0, 1.0),                 # red
+        (0.0, 0.365079, 0.746032, 1.0), (0.0, 0.0, 1.0, 1.0),      # green
+        (0.0, 0.746032, 1.0), (0.0, 0.0, 1.0))                     # blue
+
+
+def hot_r(x: np.ndarray) -> np.ndarray:
+    """matplotlib's ``hot_r`` colormap (N,) → RGB (N,3) without matplotlib: ``hot``'s
+    piecewise-linear channels, reversed, read from a 256-entry table as matplotlib does."""
+    x = np.asarray(x, dtype=np.float64)
+    index = np.clip(np.floor(np.nan_to_num(x, nan=0.0) * 256), 0, 255)
+    u = 1.0 - index / 255.0   # reversed map: hot at 1 - x
+    return np.stack([np.interp(u, _HOT[2 * c], _HOT[2 * c + 1]) for c in range(3)], axis=-1)
+
+
+def write_error_maps(folder: Path, recon: np.ndarray, recon_distances: np.ndarray, gt: np.ndarray,
+                     gt_distances: np.ndarray, top: float) -> None:
+    """``precision.ply`` (our scored points) and ``recall.ply`` (the GT's) in ``folder``,
+    coloured by distance to the other side from white (0) to black (``top`` and beyond),
+    written atomically; at most :data:`ERROR_MAP_POINTS` of each."""
+    import open3d as o3d
+
+    from eve3d.fileio import atomic_path
+
+    rng = np.random.default_rng(0)
+    for name, points, distances in (("precision", recon, recon_distances), ("recall", gt, gt_distances)):
+        keep = np.sort(rng.permutation(len(points))[:ERROR_MAP_POINTS])
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points[keep], np.float64)))
+        cloud.colors = o3d.utility.Vector3dVector(hot_r(np.minimum(distances[keep], top) / top))
+        with atomic_path(Path(folder) / f"{name}.ply") as tmp:
+            if not o3d.io.write_point_cloud(str(tmp), cloud):
+                raise Eve3dError(f"{folder}/{name}.ply: could not write the point cloud")

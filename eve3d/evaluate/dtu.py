@@ -4,47 +4,124 @@ Cull the mesh by the object masks dilated by a disk of 24 px (2DGS's ``cull_scan
 ``scale_mat``, sample the triangles on a 0.2 mm barycentric grid and thin greedily to
 0.2 mm, keep the points inside the bounding box and the ``ObsMask``; accuracy over those
 against the STL points, completeness of the STL points above the ground plane; distances
-≥ 20 mm are left out of both means; Chamfer = mean(accuracy, completeness).
+≥ 20 mm are left out of both means; Chamfer = mean(accuracy, completeness). ``precision.ply``
+and ``recall.ply`` beside ``metrics.json`` colour the points scored by their distance.
 """
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from eve3d.evaluate import EvalInputs
-from eve3d.evaluate.common import nearest_distances, read_mesh
-from eve3d.scene import Eve3dError, Scene
+from eve3d.evaluate.common import nearest_distances, read_mesh, write_error_maps
+from eve3d.scene import Camera, Eve3dError, Scene
 
 MASK_DILATION = 24
 """Radius (px) of the disk the object masks are dilated by before culling."""
+ERROR_MAP_MM = 10.0
+"""precision.ply / recall.ply colour distances from white (0) to black (10 mm and beyond),
+DTUeval-python's visualisation threshold."""
+CHECK_POINTS = 20_000
+"""STL points the ground-truth check projects into the masks."""
+MIN_IN_MASK = 0.8
+"""The check's bound: in the median view, at least this share of the STL points above the
+ground plane that fall in the image fall on the object's mask, dilated by
+:data:`MASK_DILATION` px per 1600 px of width (DTU's photos). On a miniature scan (128×96)
+the right STL scored 1.0, the same STL moved by 10 % of the object's size 0.82, by 40 %
+0.47 (another scan's STL, or cameras of another frame, lie further off still)."""
+
+
+def mask_cameras(scene: Scene) -> list[Camera]:
+    """The cameras the object masks were drawn for (``io.dtu``), each with its mask."""
+    cameras = scene.extras.get("mask_cameras", scene.cameras)
+    if any(cam.mask_path is None for cam in cameras):
+        raise Eve3dError(f"{scene.root}: the DTU protocol needs object masks (mask/) for every view")
+    return cameras
+
+
+def on_mask(cam: Camera, points: np.ndarray, dilation: int = MASK_DILATION) -> tuple[np.ndarray, np.ndarray]:
+    """Which ``points`` fall in ``cam``'s image (in front of it), and of those which fall on
+    a pixel of its object mask dilated by a disk of ``dilation`` px."""
+    import cv2
+    from skimage.morphology import disk
+
+    from eve3d.fileio import read_mask
+
+    mask = cv2.dilate(read_mask(cam.mask_path).astype(np.uint8), disk(dilation).astype(np.uint8)) > 0
+    uv, z = cam.project(points)
+    inside = cam.in_image(uv, z)
+    px = np.floor(uv[inside]).astype(np.int64)  # the pixel a point falls in (centres at +0.5)
+    return inside, mask[px[:, 1], px[:, 0]]
 
 
 def cull_by_masks(mesh, scene: Scene, dilation: int = MASK_DILATION):
     """Drop the vertices that fall, in some image, on a pixel outside its object mask
     dilated by a disk of ``dilation`` px (vertices behind a camera or outside its image are
     not judged by it); a face stays only if all its vertices stay."""
-    import cv2
-    from skimage.morphology import disk
-
-    from eve3d.fileio import read_mask
-
     v = np.asarray(mesh.vertices)
     keep = np.ones(len(v), dtype=bool)
-    kernel = disk(dilation).astype(np.uint8)
-    for cam in scene.cameras:
-        if cam.mask_path is None:
-            raise Eve3dError(f"{scene.root}: the DTU protocol needs object masks (mask/) for every view")
-        mask = cv2.dilate(read_mask(cam.mask_path).astype(np.uint8), kernel) > 0
-        uv, z = cam.project(v)
-        inside = cam.in_image(uv, z)
-        px = np.floor(uv[inside]).astype(np.int64)  # the pixel a point falls in (centres at +0.5)
+    for cam in mask_cameras(scene):
+        inside, hit = on_mask(cam, v, dilation)
         ok = np.ones(len(v), dtype=bool)
-        ok[inside] = mask[px[:, 1], px[:, 0]]
+        ok[inside] = hit
         keep &= ok
     tri = np.asarray(mesh.triangles)
     mesh.remove_triangles_by_mask(~keep[tri].all(axis=1))
     mesh.remove_unreferenced_vertices()
     return mesh
+
+
+def read_ground_truth(inputs: EvalInputs) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, float], np.ndarray]:
+    """The STL points, the ObsMask (mask, bounding box, resolution) and the ground plane,
+    with an error naming the file that cannot be read."""
+    import open3d as o3d
+    from scipy.io import loadmat
+
+    def mat(path, keys):
+        try:
+            data = loadmat(path)
+            return [data[k] for k in keys]
+        except Exception as e:  # scipy raises several kinds for a file that is not a .mat
+            raise Eve3dError(f"{path}: not a DTU {' / '.join(keys)} file ({type(e).__name__}: {e})") from None
+
+    obs_mask, bb, res = mat(inputs.obs_mask, ("ObsMask", "BB", "Res"))
+    (plane,) = mat(inputs.plane, ("P",))
+    stl = np.asarray(o3d.io.read_point_cloud(str(inputs.gt)).points)
+    if not len(stl):
+        raise Eve3dError(f"{inputs.gt}: empty or unreadable ground-truth point cloud")
+    return stl, (obs_mask, bb.astype(np.float32), float(np.squeeze(res))), plane.reshape(4)
+
+
+def above_plane(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Which points lie above the ground plane P (P·[x, 1] > 0): the object, not the table."""
+    return np.concatenate([points, np.ones((len(points), 1))], 1) @ plane > 0
+
+
+def check_alignment(inputs: EvalInputs) -> dict:
+    """Before any training: the STL points above the ground plane, moved into the scan's
+    normalised frame, fall on the object in its photos (module constants); an error names
+    the STL file otherwise."""
+    scene = inputs.scene
+    stl, _, plane = read_ground_truth(inputs)
+    stl = stl[above_plane(stl, plane)]  # the object: the table around it is not in the masks
+    if len(stl) < 100:
+        raise Eve3dError(f"{inputs.gt}: {len(stl)} points lie above the ground plane of {inputs.plane}: are they "
+                         f"the same scan's files?")
+    stl = stl[np.random.default_rng(0).choice(len(stl), min(CHECK_POINTS, len(stl)), replace=False)]
+    inverse = np.linalg.inv(scene.to_world)
+    points = stl @ inverse[:3, :3].T + inverse[:3, 3]
+    shares = []
+    for cam in mask_cameras(scene):
+        inside, hit = on_mask(cam, points, round(MASK_DILATION * cam.width / 1600))
+        shares.append(float(hit.mean()) if inside.sum() >= 100 else 0.0)
+    share = float(np.median(shares))
+    if share < MIN_IN_MASK:
+        raise Eve3dError(f"{inputs.gt}: does not line up with {scene.root}: in the median view {share:.0%} of its "
+                         f"points fall on the object's mask (at least {MIN_IN_MASK:.0%} expected). Is it the STL "
+                         f"of this scan, and cameras.npz the scan's own (its scale_mat maps to DTU mm)?")
+    return {"stl_points_in_masks": share}
 
 
 def dtu_sample_mesh(vertices: np.ndarray, triangles: np.ndarray, density: float) -> np.ndarray:
@@ -93,40 +170,30 @@ def radius_thin(points: np.ndarray, radius: float, rng: np.random.Generator) -> 
 
 def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     """The protocol of the module docstring; distances in mm."""
-    import open3d as o3d
-    from scipy.io import loadmat
-
     s, scene = inputs.settings, inputs.scene
     rng = np.random.default_rng(0)
+    stl, (obs_mask, bb, res), plane = read_ground_truth(inputs)
     mesh = cull_by_masks(read_mesh(inputs.reconstruction), scene)
     if len(mesh.triangles) == 0:
         raise Eve3dError(f"{inputs.reconstruction}: nothing of the mesh lies inside the object masks")
     mesh.transform(scene.to_world)
     data = dtu_sample_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), s.dtu_density)
     data = radius_thin(data, s.dtu_density, rng)
-    try:
-        obs = loadmat(inputs.obs_mask)
-        obs_mask, bb, res = obs["ObsMask"], obs["BB"].astype(np.float32), float(np.squeeze(obs["Res"]))
-        plane = loadmat(inputs.plane)["P"].reshape(4)
-    except Exception as e:
-        raise Eve3dError(f"{inputs.obs_mask} / {inputs.plane}: cannot read DTU observation mask or plane ({e})") from None
     inbound = np.all((data >= bb[:1] - patch) & (data < bb[1:] + patch * 2), axis=1)
     data_in = data[inbound]
     grid = np.around((data_in - bb[:1]) / res).astype(np.int32)
     grid_ok = np.all((grid >= 0) & (grid < np.array(obs_mask.shape)), axis=1)
     in_obs = obs_mask[grid[grid_ok, 0], grid[grid_ok, 1], grid[grid_ok, 2]].astype(bool)
     data_in_obs = data_in[grid_ok][in_obs]
-    stl = np.asarray(o3d.io.read_point_cloud(str(inputs.gt)).points)
-    if not len(stl):
-        raise Eve3dError(f"{inputs.gt}: empty or unreadable ground-truth point cloud")
     # Distances at or beyond max_dist are left out of the means, so the search stops there.
     d2s = nearest_distances(data_in_obs, stl, s.dtu_max_dist)
-    above = np.concatenate([stl, np.ones((len(stl), 1))], 1) @ plane > 0
+    above = above_plane(stl, plane)
     s2d = nearest_distances(stl[above], data_in, s.dtu_max_dist)
     near_d2s, near_s2d = d2s[d2s < s.dtu_max_dist], s2d[s2d < s.dtu_max_dist]
     if not len(near_d2s) or not len(near_s2d):
         raise Eve3dError(f"{inputs.reconstruction}: no point of the mesh inside the ObsMask lies within "
                          f"{s.dtu_max_dist:g} mm of {inputs.gt}: is the mesh in the scan's normalised frame?")
+    write_error_maps(Path(inputs.out).parent, data_in_obs, d2s, stl[above], s2d, ERROR_MAP_MM)
     acc, comp = float(near_d2s.mean()), float(near_s2d.mean())
     return {"accuracy": acc, "completeness": comp, "chamfer": (acc + comp) / 2,
             "n_recon": int(len(data_in_obs)), "n_gt": int(above.sum())}

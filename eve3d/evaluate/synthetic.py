@@ -14,13 +14,17 @@
   out (its share of the area is reported).
 * **τ.** ``evaluate.tau`` when given, else ``tau_fraction`` × the diagonal of the visible
   GT's bounding box: the same rule for an object on a table and a room seen from inside.
+* **Error maps.** ``precision.ply`` and ``recall.ply`` beside ``metrics.json``: the samples
+  scored, coloured by distance (white 0, black from 3τ), as the T&T protocol writes them.
 """
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
 from eve3d.evaluate import GIVEN_TAU, EvalInputs
-from eve3d.evaluate.common import distance_metrics, mesh_distances, read_mesh
+from eve3d.evaluate.common import COLOUR_RANGE, distance_metrics, mesh_distances, read_mesh, write_error_maps
 from eve3d.raycast import MeshRaycaster, seen_counts
 from eve3d.scene import Eve3dError
 from eve3d.surface import sample_surface
@@ -73,7 +77,9 @@ def evaluate_synthetic(inputs: EvalInputs) -> dict:
         tau, rule = s.tau_fraction * diagonal, f"{s.tau_fraction:g} x visible-GT bounding-box diagonal ({diagonal:.5g})"
     recon, inside_fraction = samples_where(recon_mesh, lambda p: np.all((p >= lo - tau) & (p <= hi + tau), axis=1),
                                            s.samples, rng)
-    metrics = distance_metrics(mesh_distances(gt_mesh, recon), mesh_distances(recon_mesh, gt), tau)
+    to_gt, to_recon = mesh_distances(gt_mesh, recon), mesh_distances(recon_mesh, gt)
+    metrics = distance_metrics(to_gt, to_recon, tau)
+    write_error_maps(Path(inputs.out).parent, recon, to_gt, gt, to_recon, COLOUR_RANGE * tau)
     return {"tau": tau, "tau_rule": rule, **metrics, "n_recon": int(len(recon)), "n_gt": int(len(gt)),
             "visible_gt_fraction": visible_fraction, "visible_rule": f"seen by at least {s.min_views} camera(s)",
             "crop": {"box_min": (lo - tau).tolist(), "box_max": (hi + tau).tolist(),

@@ -12,8 +12,9 @@ for open3d 0.9), ported to current open3d (``o3d.pipelines.registration``).
    share of GT points closer than τ to ours, F = their harmonic mean. ``precision.ply`` and
    ``recall.ply`` beside ``metrics.json`` colour those points by distance (``hot_r``, 0..3τ).
 
-The reconstruction is a mesh; its points are its vertices (as the toolbox reads a mesh PLY)
-plus uniform area samples. τ is the toolbox's per-scene table unless ``evaluate.tau`` is
+The reconstruction is a mesh; its points are its vertices, as the toolbox reads a mesh PLY
+(``evaluate.tnt_points: vertices``), or its vertices plus uniform area samples (``sampled``):
+on a coarse mesh (vertex spacing above τ/2) the two differ. τ is the toolbox's per-scene table unless ``evaluate.tau`` is
 given. Not supported: the toolbox's >1600-frame branch (a log of every video frame thinned
 by a mapping file); the reconstruction must have exactly the cameras of the log.
 """
@@ -26,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from eve3d.evaluate import GIVEN_TAU, EvalInputs
-from eve3d.evaluate.common import fscore, nearest_distances, read_mesh
+from eve3d.evaluate.common import COLOUR_RANGE, fscore, nearest_distances, read_mesh, write_error_maps
 from eve3d.scene import Eve3dError, Scene
 
 TAU: dict[str, float] = {"Barn": 0.01, "Caterpillar": 0.005, "Church": 0.025, "Courthouse": 0.025,
@@ -36,8 +37,6 @@ MAX_POINTS = 4_000_000
 """The last ICP stage thins a cropped cloud above this many points (toolbox ``MAX_POINT_NUMBER``)."""
 HISTOGRAM_RANGE = 5.0
 """The toolbox histograms distances up to 5τ; a longer search cannot change P or R."""
-COLOUR_RANGE = 3.0
-"""Distances are coloured from 0 (white) to 3τ and beyond (black)."""
 
 
 def scene_tau(name: str | None, tau: float | None) -> tuple[float, str]:
@@ -83,8 +82,9 @@ def check_cameras(scene: Scene) -> np.ndarray:
     if len(reference) != len(scene.cameras):
         raise Eve3dError(
             f"{scene.extras.get('trajectory', 'the reference trajectory')}: has {len(reference)} cameras, "
-            f"the reconstruction {len(scene.cameras)}; the alignment pairs them one to one (the "
-            f"toolbox's >1600-frame mapping-file branch is not supported)")
+            f"the reconstruction {len(scene.cameras)}; the alignment pairs them one to one. Is it the official "
+            f"evaluation trajectory of {scene.extras.get('name')}, not a training log of another SfM run? (The "
+            f"toolbox's >1600-frame mapping-file branch is not supported.)")
     return reference
 
 
@@ -185,43 +185,71 @@ def score(recon_pcd, gt_pcd, transform: np.ndarray, volume, tau: float) -> Score
     return Score(precision, recall, d1, d2, s, t)
 
 
-_HOT = ((0.0, 0.365079, 1.0), (0.0416, 1.0, 1.0),                 # red
-        (0.0, 0.365079, 0.746032, 1.0), (0.0, 0.0, 1.0, 1.0),      # green
-        (0.0, 0.746032, 1.0), (0.0, 0.0, 1.0))                     # blue
-
-
-def hot_r(x: np.ndarray) -> np.ndarray:
-    """matplotlib's ``hot_r`` colormap (N,) → RGB (N,3) without matplotlib: ``hot``'s
-    piecewise-linear channels, reversed, read from a 256-entry table as matplotlib does."""
-    x = np.asarray(x, dtype=np.float64)
-    index = np.clip(np.floor(np.nan_to_num(x, nan=0.0) * 256), 0, 255)
-    u = 1.0 - index / 255.0   # reversed map: hot at 1 - x
-    return np.stack([np.interp(u, _HOT[2 * c], _HOT[2 * c + 1]) for c in range(3)], axis=-1)
-
-
-def write_distance_colours(path: Path, pcd, distances: np.ndarray, tau: float) -> None:
-    """``pcd`` coloured by distance (white at 0, black from 3τ), written atomically."""
-    import open3d as o3d
-
-    from eve3d.fileio import atomic_path
-
-    out = o3d.geometry.PointCloud(pcd)
-    top = COLOUR_RANGE * tau
-    out.colors = o3d.utility.Vector3dVector(hot_r(np.minimum(distances, top) / top))
-    with atomic_path(path) as tmp:
-        if not o3d.io.write_point_cloud(str(tmp), out):
-            raise Eve3dError(f"{path}: could not write the point cloud")
-
-
-def reconstruction_points(mesh, tau: float, samples: int, rng: np.random.Generator) -> np.ndarray:
-    """The mesh's vertices plus up to ``samples`` uniform area samples, about one per
-    (τ/2)² (τ in the mesh's units)."""
+def reconstruction_points(mesh, mode: str, tau: float, samples: int, rng: np.random.Generator) -> np.ndarray:
+    """The points of the mesh that are scored (``evaluate.tnt_points``): its vertices, and in
+    ``sampled`` mode up to ``samples`` uniform area samples, about one per (τ/2)² (τ in the
+    mesh's units)."""
     from eve3d.surface import sample_surface
 
     vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-    # The toolbox scores a mesh by its vertices; area samples so a coarse mesh isn't charged for its vertex spacing.
+    if mode == "vertices":
+        return vertices
     count = int(min(samples, mesh.get_surface_area() / (tau / 2) ** 2))
     return np.vstack([vertices, sample_surface(vertices, triangles, count, rng)]) if count > 0 else vertices
+
+
+MAX_TRAJECTORY_RESIDUAL = 0.05
+"""The ground-truth check's bound on the trajectory: after the best similarity, our camera
+centres lie within this share of the cameras' spread (RMS) of the log's."""
+SPARSE_NEAR = 10.0
+"""... and at least :data:`MIN_SPARSE_NEAR` of the scene's SfM points inside the crop lie
+within this many τ of the GT points (no ICP refines this rough alignment yet, and real SfM
+points are noisy). On the miniature T&T scene of the tests the right files score 1.0 and a
+training log in the scene's own frame 0.40 (0.27 within 5τ: a large ground plane catches some
+points by chance). Not yet measured on the real downloads: ``evaluate.ground_truth_check:
+warn`` goes on past it."""
+MIN_SPARSE_NEAR = 0.5
+
+
+def check_alignment(inputs: EvalInputs) -> dict:
+    """Before any training, that the evaluation will align: (1) the cameras of
+    ``{Scene}_COLMAP_SfM.log`` are the scene's, in its order (a similarity maps our centres
+    onto them); (2) the scene's SfM points, carried into the GT frame by that similarity and
+    ``{Scene}_trans.txt``, lie on the GT points inside the crop. A log from another SfM run
+    passes (1) and fails (2): the transform was made for the official log's frame."""
+    import open3d as o3d
+
+    from eve3d.scene import similarity_fit
+
+    scene, extras = inputs.scene, inputs.scene.extras
+    tau, _ = scene_tau(extras.get("name"), inputs.settings.tau)
+    reference = check_cameras(scene)
+    ours = np.array([cam.center for cam in scene.cameras])
+    s, R, t = similarity_fit(ours, reference)
+    spread = np.sqrt(np.mean(np.sum((reference - reference.mean(0)) ** 2, axis=1)))
+    residual = float(np.sqrt(np.mean(np.sum((s * ours @ R.T + t - reference) ** 2, axis=1))) / spread)
+    log = extras.get("trajectory", "the trajectory")
+    if residual > MAX_TRAJECTORY_RESIDUAL:
+        raise Eve3dError(f"{log}: its cameras are not the scene's images in their order (after the best similarity "
+                         f"the centres differ by {residual:.0%} of their spread, at most "
+                         f"{MAX_TRAJECTORY_RESIDUAL:.0%} expected): is it the official evaluation trajectory of "
+                         f"{extras.get('name')}, for these images?")
+    if scene.points is None or not len(scene.points):
+        return {"trajectory_residual": residual}
+    gt_trans = np.asarray(extras["alignment"], dtype=np.float64)
+    to_gt = gt_trans @ np.vstack([np.hstack([s * R, t[:, None]]), [0, 0, 0, 1]])
+    volume = read_crop(extras["crop"])
+    sparse = crop_and_downsample(_cloud(scene.points), volume, to_gt)
+    gt = crop_and_downsample(o3d.io.read_point_cloud(str(extras["gt_points"])), volume, voxel=tau / 2)
+    distances = nearest_distances(np.asarray(sparse.points), np.asarray(gt.points), SPARSE_NEAR * tau)
+    near = float(np.mean(distances < SPARSE_NEAR * tau)) if len(distances) >= 10 else 0.0
+    if near < MIN_SPARSE_NEAR:
+        raise Eve3dError(
+            f"{extras['trans']}: the scene's SfM points, aligned by {log} and this transform, do not lie on "
+            f"{extras['gt_points']}: {len(distances)} fall inside the crop {extras['crop']}, {near:.0%} of them within "
+            f"{SPARSE_NEAR:g}τ of the GT (at least {MIN_SPARSE_NEAR:.0%} expected). Is {log} the official evaluation "
+            f"trajectory (not a training log of another SfM run of the same images), and are the files this scene's?")
+    return {"trajectory_residual": residual, "sparse_in_crop": len(distances), "sparse_near_gt": near}
 
 
 def similarity_scale(transform: np.ndarray) -> float:
@@ -251,16 +279,17 @@ def evaluate_tnt(inputs: EvalInputs) -> dict:
     target = reference @ gt_trans[:3, :3].T + gt_trans[:3, 3]
     residual = centres @ rough[:3, :3].T + rough[:3, 3] - target
     # τ in our units: the similarity's scale carries GT units into ours for the sampling density.
-    points = reconstruction_points(mesh, tau / similarity_scale(rough), settings.samples, np.random.default_rng(0))
+    points = reconstruction_points(mesh, settings.tnt_points, tau / similarity_scale(rough), settings.samples,
+                                   np.random.default_rng(0))
     recon_pcd = _cloud(points)
 
     transform = refine_alignment(recon_pcd, gt_pcd, rough, volume, tau)
     result = score(recon_pcd, gt_pcd, transform, volume, tau)
     folder = Path(inputs.out).parent
-    write_distance_colours(folder / "precision.ply", result.recon, result.recon_distances, tau)
-    write_distance_colours(folder / "recall.ply", result.gt, result.gt_distances, tau)
-    return {"tau": tau, "tau_rule": tau_rule, "precision": result.precision, "recall": result.recall,
-            "fscore": fscore(result.precision, result.recall),
+    write_error_maps(folder, np.asarray(result.recon.points), result.recon_distances, np.asarray(result.gt.points),
+                     result.gt_distances, COLOUR_RANGE * tau)
+    return {"tau": tau, "tau_rule": tau_rule, "points": settings.tnt_points,
+            "precision": result.precision, "recall": result.recall, "fscore": fscore(result.precision, result.recall),
             "n_recon": len(result.recon.points), "n_gt": len(result.gt.points),
             "transformation": transform.tolist(),   # ours → GT frame
             "alignment_rmse": float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))}

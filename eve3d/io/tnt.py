@@ -27,10 +27,14 @@ def tnt_name(root: Path) -> str | None:
     return trans[0].name[: -len("_trans.txt")] if trans else None
 
 
+GROUND_TRUTH_FILES = {"gt_points": ".ply", "crop": ".json", "trans": "_trans.txt", "trajectory": "_COLMAP_SfM.log"}
+"""The official evaluation files of a T&T scene, beside its images: ``{Scene}{suffix}``
+(``Scene.extras`` keys)."""
+
+
 def read_tnt(root: Path, model_dir: Path, check_images: bool = True):
     name = tnt_name(root)
-    files = {k: root / f"{name}{suffix}" for k, suffix in
-             (("gt_points", ".ply"), ("crop", ".json"), ("trans", "_trans.txt"), ("trajectory", "_COLMAP_SfM.log"))}
+    files = {k: root / f"{name}{suffix}" for k, suffix in GROUND_TRUTH_FILES.items()}
     missing = [str(p) for p in files.values() if not p.is_file()]
     if missing:
         raise Eve3dError(f"{root}: Tanks and Temples ground-truth files missing: {', '.join(missing)}")

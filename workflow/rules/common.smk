@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
-from eve3d.config import has_gt_mesh, method_settings, resolve_config, scene_protocol, scene_value, stage_settings
+from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_protocol, scene_sections, scene_value,
+                          stage_settings)
 from eve3d.io.loader import has_poses
 from eve3d.layout import PRETRAIN, Layout
 from eve3d.scene import Eve3dError
@@ -51,12 +52,13 @@ for _where, _names in [("methods", config["methods"])] + [
 METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
 # The training sections are checked now (the others by resolve_config), so that a typo stops
 # the workflow before any job runs.
-try:
-    stage_settings(PretrainSettings, "pretrain", config)
-    for _name in TRAINED:
-        method_settings(_name, config, "methods")
-except Eve3dError as e:
-    raise WorkflowError(f"config: {e}")
+for _scene in SCENES:  # a scene's own train keys go over the section
+    try:
+        stage_settings(PretrainSettings, "pretrain", scene_sections(config, _scene))
+        for _name in TRAINED:
+            method_settings(_name, scene_sections(config, _scene), "methods")
+    except Eve3dError as e:
+        raise WorkflowError(f"config: scenes.{_scene}: {e}")
 # Jobs run `python -m eve3d`: the interpreter that runs Snakemake (a venv) comes first on
 # PATH, a conda env (--use-conda) prepends its own; PYTHONPATH finds this checkout's package.
 os.environ["PATH"] = os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", "")
@@ -115,8 +117,8 @@ def stereo_priors(scene, backend=None):
 
 
 def joint_inputs(wildcards):
-    """The posed dataset, and the stereo priors of a method that uses them."""
-    inputs = {"scene": posed_dataset(wildcards)}
+    """The posed dataset, its ground-truth check, and the stereo priors of a method that uses them."""
+    inputs = {"scene": posed_dataset(wildcards), "checked": ground_truth_checked(wildcards)}
     if METHOD[wildcards.method].needs_priors:
         inputs["priors"] = stereo_priors(wildcards.scene)
     return inputs
@@ -149,24 +151,26 @@ def job_config(*sections, **values):
     return shlex.quote(json.dumps(job, sort_keys=True))
 
 
-def training_job(stage, scene=None, method=None):
-    """A training stage's job config: `train` and the stage's section (the scene's protocol
-    adds what it asks of the joint stage: nvs holds views out) and the config's variants
-    this method starts from (a variant's settings rerun that variant only)."""
+def training_job(stage, scene, method=None):
+    """A training stage's job config: `train` (with the scene's own train keys over it) and
+    the stage's section (the scene's protocol adds what it asks of the joint stage: nvs holds
+    views out) and the config's variants this method starts from (a variant's settings rerun
+    that variant only)."""
     section = dict(config[stage])
-    if stage == "joint" and scene is not None:
+    if stage == "joint":
         section.update(PROTOCOL[scene].joint_settings)
     chain = {}  # the config's variants this method starts from, itself first
     while method in config["variants"] and method not in chain:
         chain[method] = config["variants"][method]
         method = chain[method].get("method", method)
-    return job_config("train", **{stage: section}, **({"variants": chain} if chain else {}))
+    return job_config(train=scene_sections(config, scene)["train"], **{stage: section},
+                      **({"variants": chain} if chain else {}))
 
 
-def render_job():
+def render_job(scene):
     """stereo-render's job config: the `stereo` section, and the render settings the pretrain
-    trained with (the right views are rasterised the same way)."""
-    rendering = pick(RenderSettings, stage_settings(PretrainSettings, "pretrain", config))
+    trained the scene with (the right views are rasterised the same way)."""
+    rendering = pick(RenderSettings, stage_settings(PretrainSettings, "pretrain", scene_sections(config, scene)))
     return job_config("stereo", pretrain=dataclasses.asdict(rendering))
 
 
@@ -203,15 +207,45 @@ def scores_depth(scene):
     return PROTOCOL[scene].scores == "mesh" and has_gt_mesh(scene_config(scene))
 
 
-def evaluate_inputs(wildcards):
-    """The method's reconstruction (mesh, or trained model for nvs), the posed dataset, the
-    ground-truth files the protocol names (eve3d.evaluate.PROTOCOLS) and, where the exact
-    depth is known, the depth maps the mesh fused and the exact ones."""
+def ground_truth_inputs(wildcards):
+    """The posed dataset and the ground-truth files the protocol names (eve3d.evaluate.PROTOCOLS)."""
     sc, protocol = scene_config(wildcards.scene), PROTOCOL[wildcards.scene]
-    reconstruction = LAYOUT.mesh if protocol.scores == "mesh" else LAYOUT.model
-    inputs = {"scene": posed_dataset(wildcards), "reconstruction": reconstruction(wildcards.scene, wildcards.method)}
+    inputs = {"scene": posed_dataset(wildcards)}
     for name, key in protocol.config_inputs.items():
         inputs[name] = gt_input(wildcards) if key == "gt_mesh" else scene_value(sc, key)
+    return inputs
+
+
+def ground_truth_args(wildcards, input):
+    """The protocol and its ground-truth flags (a generated GT mesh lies inside its dataset folder)."""
+    protocol = PROTOCOL[wildcards.scene]
+    args = [f"--protocol {protocol.name}"]
+    for name, key in protocol.config_inputs.items():
+        args.append(f"{flag(name)} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
+    return " ".join(args)
+
+
+def ground_truth_checked(wildcards):
+    """The check that the scene's ground truth lines up with its cameras, for protocols that
+    have one: training waits for it, so a misplaced file stops the run first. Ancient: a
+    rerun of the check (an evaluate setting changed) does not retrain anything."""
+    return [ancient(LAYOUT.ground_truth_check(wildcards.scene))] if PROTOCOL[wildcards.scene].check else []
+
+
+def check_job(wildcards):
+    """The ground-truth check's job config: what it reads of `evaluate` (τ, and whether a
+    failed check stops the run), so that another scoring setting does not rerun it."""
+    settings = evaluate_settings(wildcards.scene)
+    return job_config(evaluate={key: settings[key] for key in ("tau", "ground_truth_check")})
+
+
+def evaluate_inputs(wildcards):
+    """The method's reconstruction (mesh, or trained model for nvs), the posed dataset, the
+    ground-truth files the protocol names and, where the exact depth is known, the depth
+    maps the mesh fused and the exact ones."""
+    protocol = PROTOCOL[wildcards.scene]
+    reconstruction = LAYOUT.mesh if protocol.scores == "mesh" else LAYOUT.model
+    inputs = {**ground_truth_inputs(wildcards), "reconstruction": reconstruction(wildcards.scene, wildcards.method)}
     if scores_depth(wildcards.scene):
         inputs["depth"] = depth_source(wildcards)
         inputs["exact_depth"] = stereo_priors(wildcards.scene, "oracle")
@@ -226,10 +260,17 @@ def evaluate_settings(scene):
 def evaluate_args(wildcards, input):
     """The protocol, its inputs, and the job config: the `evaluate` section with the scene's
     own keys over it, and `mesh` (the depth maps are scored where the mesh fused them)."""
-    protocol = PROTOCOL[wildcards.scene]
-    args = [f"--protocol {protocol.name}", f"--{protocol.scores} {input.reconstruction}"]
-    for name, key in protocol.config_inputs.items():  # a generated GT mesh lies inside its dataset folder
-        args.append(f"{flag(name)} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
+    args = [ground_truth_args(wildcards, input), f"--{PROTOCOL[wildcards.scene].scores} {input.reconstruction}"]
     if scores_depth(wildcards.scene):
         args.append(f"--depth {input.depth} --exact-depth {input.exact_depth}")
     return " ".join(args + ["--config", job_config("mesh", evaluate=evaluate_settings(wildcards.scene))])
+
+
+def report_args(wildcards):
+    """Each scene's posed dataset (its first photo heads the report's sheets), and the job
+    config: `stereo` (the priors shown) and the benchmark whose published figures join the means."""
+    from types import SimpleNamespace
+
+    args = [f"--dataset {shlex.quote(f'{s}={posed_dataset(SimpleNamespace(scene=s))}')}" for s in SCENES]
+    benchmark = {"benchmark": config["benchmark"]} if config.get("benchmark") else {}
+    return " ".join(args + ["--config", job_config("stereo", **benchmark)])

@@ -10,7 +10,7 @@ rule stereo_render:
     output:
         directory(LAYOUT.stereo("{scene}")),
     params:
-        config=lambda wc: render_job(),
+        config=lambda wc: render_job(wc.scene),
     log:
         LAYOUT.log("{scene}", "stereo_render"),
     benchmark:

@@ -1,4 +1,23 @@
-# Metrics per scene and method, and the summary table over all of them.
+# Metrics per scene and method, and the summary table over all of them; before any
+# training, the check that a benchmark scene's ground truth lines up with its cameras.
+
+
+rule check_ground_truth:
+    input:
+        unpack(ground_truth_inputs),
+    output:
+        LAYOUT.ground_truth_check("{scene}"),
+    params:
+        args=ground_truth_args,
+        config=check_job,
+    log:
+        LAYOUT.log("{scene}", "check_ground_truth"),
+    conda:
+        CONDA_ENV
+    shell:
+        # the message that names the misplaced file is the log's last line: show it
+        "{EVE3D} evaluate --check --scene {input.scene} --out {output} {params.args} --config {params.config}"
+        " > {log} 2>&1 || {{ tail -n 3 {log} >&2; exit 1; }}"
 
 
 rule evaluate:
@@ -27,3 +46,28 @@ rule summary:
         CONDA_ENV
     shell:
         "{EVE3D} summary {input.metrics} {input.novel_views} --out {output}"
+
+
+rule report_pages:
+    input:
+        summary=LAYOUT.summary(),
+        meshes=mesh_files(),
+    output:
+        summary=report(LAYOUT.report_pages() / "summary.html", caption="../report/summary.rst", category="1 Summary"),
+        charts=report(directory(LAYOUT.report_pages() / "charts"), patterns=["{chart}.png"],
+                      caption="../report/charts.rst", category="2 Charts", labels={"chart": "{chart}"}),
+        scenes=report(directory(LAYOUT.report_pages() / "scenes"), patterns=["{scene}/{method}.png"],
+                      caption="../report/scenes.rst", category="3 Scenes", subcategory="{scene}",
+                      labels={"scene": "{scene}", "method": "{method}"}),
+        runtimes=report(LAYOUT.report_pages() / "runtimes.html", caption="../report/runtimes.rst",
+                        category="4 Run times"),
+    params:
+        args=report_args,
+        results=LAYOUT.root,
+        out=LAYOUT.report_pages(),
+    log:
+        LAYOUT.logs() / "report_pages.log",
+    conda:
+        CONDA_ENV
+    shell:
+        "{EVE3D} report --results {params.results} --out {params.out} {params.args} > {log} 2>&1"

@@ -4,13 +4,14 @@
 
 rule pretrain:
     input:
-        posed_dataset,
+        scene=posed_dataset,
+        checked=ground_truth_checked,
     output:
         model=LAYOUT.model("{scene}", PRETRAIN),
         metrics=LAYOUT.train_metrics("{scene}", PRETRAIN),
         tone=LAYOUT.tone_curve("{scene}"),
     params:
-        config=lambda wc: training_job("pretrain"),
+        config=lambda wc: training_job("pretrain", wc.scene),
         out=lambda wc: LAYOUT.pretrain(wc.scene),
     log:
         LAYOUT.log("{scene}", "pretrain"),
@@ -20,7 +21,7 @@ rule pretrain:
     conda:
         CONDA_ENV
     shell:
-        "OMP_NUM_THREADS={threads} {EVE3D} pretrain --scene {input} --out {params.out} --config {params.config}"
+        "OMP_NUM_THREADS={threads} {EVE3D} pretrain --scene {input.scene} --out {params.out} --config {params.config}"
         " > {log} 2>&1"
 
 

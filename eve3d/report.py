@@ -1,0 +1,261 @@
+"""The report's pages (``eve3d report``): what Snakemake's ``--report`` gathers into one
+self-contained HTML file, from the outputs the ``report`` rule marks with ``report(...)``.
+
+* ``summary.html``: every scene × method of ``summary.csv`` (table ``#summary``), then each
+  method's mean and, for a benchmark, the published figures of DESIGN §4 (table ``#means``).
+* ``charts/{metric}.png``: bar charts per scene and method of the F-score, Chamfer distance
+  and held-out PSNR, those the rows have (matplotlib).
+* ``runtimes.html`` and ``charts/runtimes.png``: wall seconds of every job, from Snakemake's
+  ``benchmark:`` files.
+* ``scenes/{scene}/{method}.png``: one sheet per scene and method: the photo of its first
+  view, the stereo prior, the refined prior D̂ (methods that learn it), the rendered depth
+  and normals, the shaded mesh, and the precision / recall error maps (the points scored,
+  coloured by distance, seen along z) or the held-out render | photo.
+"""
+from __future__ import annotations
+
+import csv
+import html
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from eve3d.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, Layout
+
+METRICS_CHARTED = (("fscore", "F-score (higher is better)"), ("chamfer", "Chamfer distance (lower is better)"),
+                   ("psnr", "held-out PSNR in dB (higher is better)"))
+"""summary.csv columns drawn as bar charts, with their axis titles."""
+SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "points", "accuracy", "completeness", "chamfer",
+                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "psnr", "ssim")
+"""The columns of ``summary.csv`` (``eve3d summary``) and of the report's table."""
+STYLE = ("<style>body{font-family:sans-serif;margin:1em}table{border-collapse:collapse;margin-bottom:1.5em}"
+         "th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}th{background:#eee}"
+         "td:first-child,td:nth-child(2){text-align:left}</style>")
+
+
+def read_rows(summary: Path) -> list[dict]:
+    with open(summary, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _number(text: str | None) -> float | None:
+    try:
+        return float(text) if text not in (None, "") else None
+    except ValueError:
+        return None
+
+
+def _cell(value) -> str:
+    number = _number(value) if isinstance(value, str) else value
+    if isinstance(number, float):
+        return f"{number:.4g}"
+    return html.escape("" if value is None else str(value))
+
+
+def _table(table_id: str, columns: list[str], rows: list[Mapping]) -> str:
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    body = "".join("<tr>" + "".join(f"<td>{_cell(r.get(c))}</td>" for c in columns) + "</tr>" for r in rows)
+    return f'<table id="{table_id}"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
+
+
+def means(rows: list[dict]) -> list[dict]:
+    """Each method's mean of every charted metric over the scenes that have it."""
+    out = []
+    for method in sorted({r["method"] for r in rows}):
+        mine = [r for r in rows if r["method"] == method]
+        row = {"source": "this run (mean)", "method": method, "scenes": len(mine)}
+        for metric, _ in METRICS_CHARTED:
+            values = [v for v in (_number(r.get(metric)) for r in mine) if v is not None]
+            row[metric] = float(np.mean(values)) if values else None
+        out.append(row)
+    return out
+
+
+def summary_page(rows: list[dict], published: list[dict], title: str) -> str:
+    """The summary table (one row per scene and method) and the means beside the published
+    figures."""
+    columns = [c for c in SUMMARY_COLUMNS if any(r.get(c) not in (None, "") for r in rows)]
+    mean_columns = ["source", "method", "scenes"] + [m for m, _ in METRICS_CHARTED if any(
+        r.get(m) is not None for r in means(rows) + published)]
+    note = ("<p>Published rows: the Eve3D paper's figures (GPU, half resolution; DESIGN §4), means over all of "
+            "the benchmark's scenes; this run's means are over its own scenes (`scenes`), which may be fewer.</p>"
+            if published else "")
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>{STYLE}</head>"
+            f"<body><h2>{html.escape(title)}</h2>{_table('summary', columns, rows)}"
+            f"<h3>Means</h3>{_table('means', mean_columns, means(rows) + published)}{note}</body></html>")
+
+
+def bar_chart(rows: list[dict], metric: str, label: str, out: Path) -> bool:
+    """Bars of ``metric`` per scene, one colour per method; False when no row has it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from eve3d.fileio import atomic_path
+
+    have = [r for r in rows if _number(r.get(metric)) is not None]
+    if not have:
+        return False
+    scenes = sorted({r["scene"] for r in have})
+    methods = sorted({r["method"] for r in have})
+    width = 0.8 / len(methods)
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.2 * len(scenes) * max(1, len(methods)) / 2), 3.2))
+    for k, method in enumerate(methods):
+        values = {r["scene"]: _number(r[metric]) for r in have if r["method"] == method}
+        xs = [i + (k - (len(methods) - 1) / 2) * width for i, s in enumerate(scenes) if s in values]
+        ax.bar(xs, [values[s] for s in scenes if s in values], width, label=method)
+    ax.set_xticks(range(len(scenes)), scenes, rotation=30 if len(scenes) > 4 else 0)
+    ax.set_ylabel(label)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+    return True
+
+
+def read_runtimes(layout: Layout) -> list[dict]:
+    """Wall seconds of every job with a Snakemake ``benchmark:`` file (first column ``s``)."""
+    rows = []
+    for path in sorted(layout.root.glob("benchmarks/*/*.tsv")):
+        with open(path, newline="") as f:
+            first = next(csv.DictReader(f, delimiter="\t"), None)
+        if first and _number(first.get("s")) is not None:
+            rows.append({"scene": path.parent.name, "job": path.stem, "seconds": _number(first["s"])})
+    return rows
+
+
+def runtimes_page(rows: list[dict]) -> str:
+    """The table of every job's wall seconds, and each scene's total."""
+    total = [{"scene": s, "job": "all jobs", "seconds": sum(r["seconds"] for r in rows if r["scene"] == s)}
+             for s in sorted({r["scene"] for r in rows})]
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>Run times</title>{STYLE}</head><body>"
+            f"<h2>Run times (wall seconds per job)</h2>{_table('runtimes', ['scene', 'job', 'seconds'], rows + total)}"
+            f"</body></html>")
+
+
+def runtimes_chart(rows: list[dict], out: Path) -> None:
+    """One horizontal bar per scene, split into its jobs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from eve3d.fileio import atomic_path
+
+    scenes = sorted({r["scene"] for r in rows}) or ["(no benchmark files)"]
+    jobs = sorted({r["job"] for r in rows})
+    fig, ax = plt.subplots(figsize=(8, 1.2 + max(0.45 * len(scenes), 0.16 * len(jobs))))
+    left = np.zeros(len(scenes))
+    for job in jobs:
+        seconds = np.array([sum(r["seconds"] for r in rows if r["scene"] == s and r["job"] == job) for s in scenes])
+        ax.barh(scenes, seconds, left=left, label=job)
+        left += seconds
+    ax.set_xlabel("wall seconds")
+    if jobs:
+        ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    fig.tight_layout()
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+
+
+def _error_map(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """The points and colours of an error map (``precision.ply`` / ``recall.ply``, points
+    coloured by distance; at most 200k of them), or None when it is empty."""
+    import open3d as o3d
+
+    cloud = o3d.io.read_point_cloud(str(path))
+    points, colours = np.asarray(cloud.points), np.asarray(cloud.colors)
+    if not len(points):
+        return None
+    keep = np.random.default_rng(0).permutation(len(points))[:200_000]
+    return points[keep], colours[keep]
+
+
+def scene_panels(layout: Layout, scene: str, method: str, photo: Path | None, backend: str) -> list[tuple[str, object]]:
+    """(title, image path or error-map points) of one scene and method, those that exist."""
+    folder = layout.method(scene, method)
+    view = photo.stem if photo is not None else None
+    candidates = [("photo", photo),
+                  ("stereo prior D* (the scene's)", layout.priors(scene, backend) / f"{view}.depth.png" if view else None),
+                  ("refined prior D̂", layout.learned_priors(scene, method) / f"{view}.depth.png" if view else None),
+                  ("rendered depth", layout.depth(scene, method) / f"{view}.depth.png" if view else None),
+                  ("rendered normals", layout.depth(scene, method) / f"{view}.normal.png" if view else None),
+                  ("shaded mesh", folder / MESH_VIEWS_DIR / "overview.png")]
+    panels = [(title, path) for title, path in candidates if path is not None and Path(path).is_file()]
+    held = sorted((folder / HELD_OUT_DIR).glob("*.png"))
+    if held:
+        panels.append(("held out: render | photo", held[0]))
+    for name in ("precision", "recall"):
+        if (folder / f"{name}.ply").is_file():
+            cloud = _error_map(folder / f"{name}.ply")
+            if cloud is not None:
+                panels.append((f"{name} errors (white 0, black ≥ 3τ; DTU 10 mm), along z", cloud))
+    return panels
+
+
+def scene_sheet(panels: list[tuple[str, object]], title: str, out: Path) -> None:
+    """The panels side by side, two rows when there are many."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from eve3d.fileio import atomic_path, read_image
+
+    cols = min(4, max(1, len(panels)))
+    rows = max(1, -(-len(panels) // cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.7 * rows + 0.4), squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    for ax, (name, item) in zip(axes.ravel(), panels):
+        if isinstance(item, tuple):
+            points, colours = item
+            ax.scatter(points[:, 0], points[:, 1], c=colours, s=0.3, linewidths=0)
+            ax.set_facecolor("#88a")
+            ax.set_aspect("equal")
+        else:
+            ax.imshow(read_image(Path(item)))
+        ax.set_title(name, fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", dpi=90)
+    plt.close(fig)
+
+
+def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backend: str,
+                 benchmark: str | None = None) -> list[Path]:
+    """Every page of the module docstring under ``out``; the files written."""
+    from eve3d.benchmarks import BENCHMARKS
+    from eve3d.fileio import atomic_path
+    from eve3d.io import load_scene
+
+    rows = read_rows(layout.summary())
+    published = BENCHMARKS[benchmark].published_rows() if benchmark else []
+    title = f"{BENCHMARKS[benchmark].title}: results" if benchmark else "eve3d results"
+    written = []
+    for name, text in (("summary.html", summary_page(rows, published, title)),
+                       ("runtimes.html", runtimes_page(read_runtimes(layout)))):
+        with atomic_path(out / name) as tmp:
+            tmp.write_text(text)
+        written.append(out / name)
+    charts = out / "charts"
+    for metric, label in METRICS_CHARTED:
+        if bar_chart(rows, metric, label, charts / f"{metric}.png"):
+            written.append(charts / f"{metric}.png")
+    runtimes_chart(read_runtimes(layout), charts / "runtimes.png")
+    written.append(charts / "runtimes.png")
+    for scene in sorted({r["scene"] for r in rows}):
+        cameras = load_scene(datasets[scene], check_images=False).cameras if scene in datasets else []
+        photo = cameras[0].image_path if cameras else None
+        for method in sorted(r["method"] for r in rows if r["scene"] == scene):
+            panels = scene_panels(layout, scene, method, photo, backend)
+            if panels:
+                path = out / "scenes" / scene / f"{method}.png"
+                scene_sheet(panels, f"{scene} · {method}", path)
+                written.append(path)
+    return written
