@@ -318,17 +318,6 @@ def format_evaluate_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _stage_seconds(path) -> float | None:
-    """Wall seconds from a Snakemake benchmark file (None when the stage did not run here)."""
-    from pathlib import Path
-
-    path = Path(path)
-    if not path.is_file():
-        return None
-    rows = path.read_text().splitlines()
-    return float(rows[1].split("\t")[0]) if len(rows) > 1 else None
-
-
 def methods_report(config: dict) -> dict:
     """The table of ``eve3d bench methods`` from a finished workflow run of ``config``
     (resolved): per scene and method the synthetic protocol's scores and the wall time of
@@ -336,7 +325,7 @@ def methods_report(config: dict) -> dict:
     scene), the means over scenes, and per scene the depth maps' accuracy against the oracle
     depth: D* (``priors/{backend}``), every learnable method's final D̂ and every trained
     method's rendered depth D (the maps its mesh fuses)."""
-    from eve3d.layout import Layout, job_name
+    from eve3d.layout import Layout, benchmark_seconds, job_name
     from eve3d.methods import methods
 
     layout, backend = Layout(config["results"]), config["stereo"]["backend"]
@@ -350,11 +339,11 @@ def methods_report(config: dict) -> dict:
             m = json.loads(path.read_text())
             stages = [layout.benchmark(scene, "mesh", name)] + (
                 [layout.benchmark(scene, "joint", name)] if known[name].trains else [])
-            times = [_stage_seconds(p) for p in stages]
+            times = [benchmark_seconds(p) for p in stages]
             rows.append({"scene": scene, "method": name, **{k: m.get(k) for k in (
                 "chamfer", "precision", "recall", "fscore")},
                 "seconds": None if None in times else sum(times)})
-        shared[scene] = {job_name(*job): _stage_seconds(layout.benchmark(scene, *job))
+        shared[scene] = {job_name(*job): benchmark_seconds(layout.benchmark(scene, *job))
                          for job in (("pretrain",), ("stereo_render",), ("stereo_depth", backend))}
         oracle = layout.priors(scene, "oracle")
         if oracle.is_dir():
@@ -405,7 +394,7 @@ def real_report(config: dict) -> dict:
 
     from eve3d.evaluate.depth import prior_agreement
     from eve3d.io import load_scene
-    from eve3d.layout import PRETRAIN, Layout
+    from eve3d.layout import PRETRAIN, Layout, benchmark_seconds
     from eve3d.mesh import extent_report
     from eve3d.photos import scan_photos
 
@@ -416,8 +405,7 @@ def real_report(config: dict) -> dict:
         scene = load_scene(posed, check_images=False)
         row = {"scene": name, "photos": len(scan_photos(Path(sc["path"]) / "images")), "registered": len(scene.cameras),
                "points": 0 if scene.points is None else len(scene.points)}
-        bench_dir = layout.root / "benchmarks" / name
-        row["seconds"] = {p.stem: _stage_seconds(p) for p in sorted(bench_dir.glob("*.tsv"))}
+        row["seconds"] = {p.stem: benchmark_seconds(p) for p in sorted(layout.benchmarks(name).glob("*.tsv"))}
         held = {}
         pre = layout.train_metrics(name, PRETRAIN)
         if pre.is_file():

@@ -293,15 +293,15 @@ def _cmd_bench_standin(a: argparse.Namespace) -> None:
     from eve3d.standin import STANDIN_SCENE, write_standin
     from eve3d.synth import generate
 
-    root = Path(a.root)
-    if (root / STANDIN_SCENE[a.benchmark]).exists():
-        raise Eve3dError(f"{root / STANDIN_SCENE[a.benchmark]}: already there; give an empty folder")
+    root, name = Path(a.root), STANDIN_SCENE[a.benchmark]
+    if (root / name).exists():
+        raise Eve3dError(f"{root / name}: already there; give an empty folder")
     with tempfile.TemporaryDirectory() as tmp:
         scene = load_scene(generate("object", Path(tmp) / "object", views=a.views, width=a.width, height=a.height))
         folder = write_standin(a.benchmark, scene, root)
-    print(f"wrote a stand-in {STANDIN_SCENE[a.benchmark]} ({a.views} views, {a.width}×{a.height}) to {folder}; run it:\n"
-          f"  snakemake -c2 --configfile config/benchmarks/{a.benchmark}.yaml --replace-workflow-config --config root={root} "
-          f"'only=[{STANDIN_SCENE[a.benchmark]}]'")
+    print(f"wrote a stand-in {name} ({a.views} views, {a.width}×{a.height}) to {folder}; run it:\n"
+          f"  snakemake -c2 --configfile config/benchmarks/{a.benchmark}.yaml --replace-workflow-config "
+          f"--config root={root} 'only=[{name}]'")
 
 
 def _cmd_bench_real(a: argparse.Namespace) -> None:
@@ -362,6 +362,7 @@ def _cmd_summary(a: argparse.Namespace) -> None:
 def _cmd_report(a: argparse.Namespace) -> None:
     from eve3d.layout import Layout
     from eve3d.report import write_report
+    from eve3d.settings import StereoSettings
 
     datasets = {}
     for item in a.dataset:
@@ -369,8 +370,6 @@ def _cmd_report(a: argparse.Namespace) -> None:
         if not sep:
             raise Eve3dError(f"--dataset {item!r}: expected SCENE=FOLDER")
         datasets[scene] = Path(folder)
-    from eve3d.settings import StereoSettings
-
     config = _config(a)
     backend = _settings(a, StereoSettings, "stereo", config).backend
     written = write_report(Layout(a.results), Path(a.out), datasets, backend, config.get("benchmark"))

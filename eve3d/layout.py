@@ -143,9 +143,14 @@ class Layout:
         (a method, a backend)."""
         return self.logs(scene) / f"{job_name(rule, what)}.log"
 
+    def benchmarks(self, scene: str | None = None) -> Path:
+        """The folder of Snakemake's ``benchmark:`` files (of one scene)."""
+        return self.root / "benchmarks" / (scene or "")
+
     def benchmark(self, scene: str, rule: str, what: str | None = None) -> Path:
-        """A job's Snakemake ``benchmark:`` file (wall seconds in its first column)."""
-        return self.root / "benchmarks" / scene / f"{job_name(rule, what)}.tsv"
+        """A job's Snakemake ``benchmark:`` file (wall seconds in its first column,
+        :func:`benchmark_seconds`)."""
+        return self.benchmarks(scene) / f"{job_name(rule, what)}.tsv"
 
     def summary(self) -> Path:
         return self.root / SUMMARY_FILE
@@ -157,6 +162,15 @@ class Layout:
     def report(self) -> Path:
         """The self-contained HTML report ``snakemake --report`` writes (README)."""
         return self.root / REPORT_FILE
+
+
+def benchmark_seconds(path: Path | str) -> float | None:
+    """Wall seconds from a Snakemake benchmark file (None when the job did not run here)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    rows = path.read_text().splitlines()
+    return float(rows[1].split("\t")[0]) if len(rows) > 1 else None
 
 
 def job_name(rule: str, what: str | None = None) -> str:

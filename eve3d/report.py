@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, Layout
+from eve3d.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, Layout, benchmark_seconds
 
 METRICS_CHARTED = (("fscore", "F-score (higher is better)"), ("chamfer", "Chamfer distance (lower is better)"),
                    ("psnr", "held-out PSNR in dB (higher is better)"))
@@ -76,32 +76,45 @@ def summary_page(rows: list[dict], published: list[dict], title: str) -> str:
     """The summary table (one row per scene and method) and the means beside the published
     figures."""
     columns = [c for c in SUMMARY_COLUMNS if any(r.get(c) not in (None, "") for r in rows)]
+    mean_rows = means(rows) + published
     mean_columns = ["source", "method", "scenes"] + [m for m, _ in METRICS_CHARTED if any(
-        r.get(m) is not None for r in means(rows) + published)]
+        r.get(m) is not None for r in mean_rows)]
     note = ("<p>Published rows: the Eve3D paper's figures (GPU, half resolution; DESIGN §4), means over all of "
             "the benchmark's scenes; this run's means are over its own scenes (`scenes`), which may be fewer.</p>"
             if published else "")
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>{STYLE}</head>"
             f"<body><h2>{html.escape(title)}</h2>{_table('summary', columns, rows)}"
-            f"<h3>Means</h3>{_table('means', mean_columns, means(rows) + published)}{note}</body></html>")
+            f"<h3>Means</h3>{_table('means', mean_columns, mean_rows)}{note}</body></html>")
 
 
-def bar_chart(rows: list[dict], metric: str, label: str, out: Path) -> bool:
-    """Bars of ``metric`` per scene, one colour per method; False when no row has it."""
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend (no display)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def _save(fig, out: Path, **options) -> None:
+    """``fig`` as a PNG at ``out``, written atomically, then closed."""
     from eve3d.fileio import atomic_path
 
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", **options)
+    _pyplot().close(fig)
+
+
+def bar_chart(rows: list[dict], metric: str, label: str, out: Path) -> bool:
+    """Bars of ``metric`` per scene, one colour per method; False when no row has it."""
     have = [r for r in rows if _number(r.get(metric)) is not None]
     if not have:
         return False
     scenes = sorted({r["scene"] for r in have})
     methods = sorted({r["method"] for r in have})
     width = 0.8 / len(methods)
-    fig, ax = plt.subplots(figsize=(max(4.0, 1.2 * len(scenes) * max(1, len(methods)) / 2), 3.2))
+    fig, ax = _pyplot().subplots(figsize=(max(4.0, 1.2 * len(scenes) * max(1, len(methods)) / 2), 3.2))
     for k, method in enumerate(methods):
         values = {r["scene"]: _number(r[metric]) for r in have if r["method"] == method}
         xs = [i + (k - (len(methods) - 1) / 2) * width for i, s in enumerate(scenes) if s in values]
@@ -110,20 +123,17 @@ def bar_chart(rows: list[dict], metric: str, label: str, out: Path) -> bool:
     ax.set_ylabel(label)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    _save(fig, out, dpi=100)
     return True
 
 
 def read_runtimes(layout: Layout) -> list[dict]:
     """Wall seconds of every job with a Snakemake ``benchmark:`` file (first column ``s``)."""
     rows = []
-    for path in sorted(layout.root.glob("benchmarks/*/*.tsv")):
-        with open(path, newline="") as f:
-            first = next(csv.DictReader(f, delimiter="\t"), None)
-        if first and _number(first.get("s")) is not None:
-            rows.append({"scene": path.parent.name, "job": path.stem, "seconds": _number(first["s"])})
+    for path in sorted(layout.benchmarks().glob("*/*.tsv")):
+        seconds = benchmark_seconds(path)
+        if seconds is not None:
+            rows.append({"scene": path.parent.name, "job": path.stem, "seconds": seconds})
     return rows
 
 
@@ -138,16 +148,9 @@ def runtimes_page(rows: list[dict]) -> str:
 
 def runtimes_chart(rows: list[dict], out: Path) -> None:
     """One horizontal bar per scene, split into its jobs."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from eve3d.fileio import atomic_path
-
     scenes = sorted({r["scene"] for r in rows}) or ["(no benchmark files)"]
     jobs = sorted({r["job"] for r in rows})
-    fig, ax = plt.subplots(figsize=(8, 1.2 + max(0.45 * len(scenes), 0.16 * len(jobs))))
+    fig, ax = _pyplot().subplots(figsize=(8, 1.2 + max(0.45 * len(scenes), 0.16 * len(jobs))))
     left = np.zeros(len(scenes))
     for job in jobs:
         seconds = np.array([sum(r["seconds"] for r in rows if r["scene"] == s and r["job"] == job) for s in scenes])
@@ -157,35 +160,33 @@ def runtimes_chart(rows: list[dict], out: Path) -> None:
     if jobs:
         ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=100, bbox_inches="tight")
-    plt.close(fig)
+    _save(fig, out, dpi=100, bbox_inches="tight")
 
 
 def _error_map(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """The points and colours of an error map (``precision.ply`` / ``recall.ply``, points
-    coloured by distance; at most 200k of them), or None when it is empty."""
+    """The points and colours of an error map (``precision.ply`` / ``recall.ply``: points
+    coloured by distance, already thinned by ``evaluate.common.write_error_maps``), or None
+    when it is empty."""
     import open3d as o3d
 
     cloud = o3d.io.read_point_cloud(str(path))
     points, colours = np.asarray(cloud.points), np.asarray(cloud.colors)
-    if not len(points):
-        return None
-    keep = np.random.default_rng(0).permutation(len(points))[:200_000]
-    return points[keep], colours[keep]
+    return (points, colours) if len(points) else None
 
 
 def scene_panels(layout: Layout, scene: str, method: str, photo: Path | None, backend: str) -> list[tuple[str, object]]:
     """(title, image path or error-map points) of one scene and method, those that exist."""
     folder = layout.method(scene, method)
-    view = photo.stem if photo is not None else None
-    candidates = [("photo", photo),
-                  ("stereo prior D* (the scene's)", layout.priors(scene, backend) / f"{view}.depth.png" if view else None),
-                  ("refined prior D̂", layout.learned_priors(scene, method) / f"{view}.depth.png" if view else None),
-                  ("rendered depth", layout.depth(scene, method) / f"{view}.depth.png" if view else None),
-                  ("rendered normals", layout.depth(scene, method) / f"{view}.normal.png" if view else None),
-                  ("shaded mesh", folder / MESH_VIEWS_DIR / "overview.png")]
-    panels = [(title, path) for title, path in candidates if path is not None and Path(path).is_file()]
+    candidates = []
+    if photo is not None:  # the maps of the photo's view
+        view = photo.stem
+        candidates = [("photo", photo),
+                      ("stereo prior D* (the scene's)", layout.priors(scene, backend) / f"{view}.depth.png"),
+                      ("refined prior D̂", layout.learned_priors(scene, method) / f"{view}.depth.png"),
+                      ("rendered depth", layout.depth(scene, method) / f"{view}.depth.png"),
+                      ("rendered normals", layout.depth(scene, method) / f"{view}.normal.png")]
+    candidates.append(("shaded mesh", folder / MESH_VIEWS_DIR / "overview.png"))
+    panels = [(title, path) for title, path in candidates if path.is_file()]
     held = sorted((folder / HELD_OUT_DIR).glob("*.png"))
     if held:
         panels.append(("held out: render | photo", held[0]))
@@ -199,16 +200,11 @@ def scene_panels(layout: Layout, scene: str, method: str, photo: Path | None, ba
 
 def scene_sheet(panels: list[tuple[str, object]], title: str, out: Path) -> None:
     """The panels side by side, two rows when there are many."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from eve3d.fileio import atomic_path, read_image
+    from eve3d.fileio import read_image
 
     cols = min(4, max(1, len(panels)))
     rows = max(1, -(-len(panels) // cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.7 * rows + 0.4), squeeze=False)
+    fig, axes = _pyplot().subplots(rows, cols, figsize=(3.2 * cols, 2.7 * rows + 0.4), squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
     for ax, (name, item) in zip(axes.ravel(), panels):
@@ -222,9 +218,7 @@ def scene_sheet(panels: list[tuple[str, object]], title: str, out: Path) -> None
         ax.set_title(name, fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=90)
-    plt.close(fig)
+    _save(fig, out, dpi=90)
 
 
 def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backend: str,
@@ -237,9 +231,10 @@ def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backen
     rows = read_rows(layout.summary())
     published = BENCHMARKS[benchmark].published_rows() if benchmark else []
     title = f"{BENCHMARKS[benchmark].title}: results" if benchmark else "eve3d results"
+    runtimes = read_runtimes(layout)
     written = []
     for name, text in (("summary.html", summary_page(rows, published, title)),
-                       ("runtimes.html", runtimes_page(read_runtimes(layout)))):
+                       ("runtimes.html", runtimes_page(runtimes))):
         with atomic_path(out / name) as tmp:
             tmp.write_text(text)
         written.append(out / name)
@@ -247,7 +242,7 @@ def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backen
     for metric, label in METRICS_CHARTED:
         if bar_chart(rows, metric, label, charts / f"{metric}.png"):
             written.append(charts / f"{metric}.png")
-    runtimes_chart(read_runtimes(layout), charts / "runtimes.png")
+    runtimes_chart(runtimes, charts / "runtimes.png")
     written.append(charts / "runtimes.png")
     for scene in sorted({r["scene"] for r in rows}):
         cameras = load_scene(datasets[scene], check_images=False).cameras if scene in datasets else []

@@ -29,6 +29,9 @@ SGM_MODES = {"hh": "STEREO_SGBM_MODE_HH", "hh4": "STEREO_SGBM_MODE_HH4", "3way":
 (``hh4``), or the single-pass variants (``3way``, ``sgbm``)."""
 BASELINE_MODES = ("disparity", "radius")
 MATCHERS = ("exhaustive", "sequential")
+GROUND_TRUTH_CHECKS = ("error", "warn", "off")
+"""What a failed ground-truth check does (``evaluate.ground_truth_check``): stop the run,
+warn and go on, or the check is skipped."""
 TNT_POINTS = ("vertices", "sampled")
 """What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
 official toolbox reads a mesh PLY, or the vertices plus area samples."""
@@ -681,7 +684,7 @@ class EvalSettings(Checked):
     """tnt: the points of a mesh that are scored: ``vertices`` (as the official toolbox, which
     reads a mesh PLY as a point cloud) or ``sampled`` (the vertices plus about one area sample
     per (τ/2)², so a mesh coarser than τ/2 is not charged for its vertex spacing)."""
-    ground_truth_check: str = setting("error", choices=("error", "warn", "off"))
+    ground_truth_check: str = setting("error", choices=GROUND_TRUTH_CHECKS)
     """dtu, tnt: the check, before any training, that the ground truth lines up with the
     cameras: ``error`` stops the run, ``warn`` prints what it found and goes on, ``off`` skips
     it. Its bounds were set on miniature downloads, not yet on the real ones."""

@@ -187,13 +187,13 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     data_in_obs = data_in[grid_ok][in_obs]
     # Distances at or beyond max_dist are left out of the means, so the search stops there.
     d2s = nearest_distances(data_in_obs, stl, s.dtu_max_dist)
-    above = above_plane(stl, plane)
-    s2d = nearest_distances(stl[above], data_in, s.dtu_max_dist)
+    stl_above = stl[above_plane(stl, plane)]
+    s2d = nearest_distances(stl_above, data_in, s.dtu_max_dist)
     near_d2s, near_s2d = d2s[d2s < s.dtu_max_dist], s2d[s2d < s.dtu_max_dist]
     if not len(near_d2s) or not len(near_s2d):
         raise Eve3dError(f"{inputs.reconstruction}: no point of the mesh inside the ObsMask lies within "
                          f"{s.dtu_max_dist:g} mm of {inputs.gt}: is the mesh in the scan's normalised frame?")
-    write_error_maps(Path(inputs.out).parent, data_in_obs, d2s, stl[above], s2d, ERROR_MAP_MM)
+    write_error_maps(Path(inputs.out).parent, data_in_obs, d2s, stl_above, s2d, ERROR_MAP_MM)
     acc, comp = float(near_d2s.mean()), float(near_s2d.mean())
     return {"accuracy": acc, "completeness": comp, "chamfer": (acc + comp) / 2,
-            "n_recon": int(len(data_in_obs)), "n_gt": int(above.sum())}
+            "n_recon": int(len(data_in_obs)), "n_gt": int(len(stl_above))}

@@ -14,8 +14,8 @@ for open3d 0.9), ported to current open3d (``o3d.pipelines.registration``).
 
 The reconstruction is a mesh; its points are its vertices, as the toolbox reads a mesh PLY
 (``evaluate.tnt_points: vertices``), or its vertices plus uniform area samples (``sampled``):
-on a coarse mesh (vertex spacing above τ/2) the two differ. τ is the toolbox's per-scene table unless ``evaluate.tau`` is
-given. Not supported: the toolbox's >1600-frame branch (a log of every video frame thinned
+on a coarse mesh (vertex spacing above τ/2) the two differ. τ is the toolbox's per-scene
+table unless ``evaluate.tau`` is given. Not supported: the toolbox's >1600-frame branch (a log of every video frame thinned
 by a mapping file); the reconstruction must have exactly the cameras of the log.
 """
 from __future__ import annotations

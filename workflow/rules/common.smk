@@ -53,10 +53,11 @@ METHODS = sorted({m for s in SCENES for m in scene_methods(s)})
 # The training sections are checked now (the others by resolve_config), so that a typo stops
 # the workflow before any job runs.
 for _scene in SCENES:  # a scene's own train keys go over the section
+    _sections = scene_sections(config, _scene)
     try:
-        stage_settings(PretrainSettings, "pretrain", scene_sections(config, _scene))
+        stage_settings(PretrainSettings, "pretrain", _sections)
         for _name in TRAINED:
-            method_settings(_name, scene_sections(config, _scene), "methods")
+            method_settings(_name, _sections, "methods")
     except Eve3dError as e:
         raise WorkflowError(f"config: scenes.{_scene}: {e}")
 # Jobs run `python -m eve3d`: the interpreter that runs Snakemake (a venv) comes first on
