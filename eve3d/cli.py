@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import functools
 import json
@@ -311,6 +312,31 @@ def _cmd_bench_real(a: argparse.Namespace) -> None:
     print(json.dumps(report, indent=2) if a.json else bench.format_real_report(report))
 
 
+def _cmd_bench_scale(a: argparse.Namespace) -> None:
+    import tempfile
+
+    from eve3d import bench
+
+    mode = "memory" if a.memory else "pipeline"
+    views, width, height = bench.SCALE_SIZE[mode]
+    flags = {"synthetic.views": a.views or views, "synthetic.width": a.width or width,
+             "synthetic.height": a.height or height}
+    if a.iterations is not None:
+        flags.update({"pretrain.iterations": a.iterations, "joint.iterations": a.iterations})
+    for name in ("views", "width", "height", "iterations", "gt_points"):
+        if getattr(a, name) is not None and getattr(a, name) < 1:
+            raise Eve3dError(f"--{name.replace('_', '-')} {getattr(a, name)}: expected a positive number")
+    from eve3d.config import job_config
+
+    config = job_config(a.config, a.set, flags)
+    with contextlib.ExitStack() as stack:
+        work = Path(a.work) if a.work else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="eve3d-scale-")))
+        report = bench.bench_scale(work, config, memory=a.memory, methods=a.methods or bench.SCALE_METHODS,
+                                   gt_points=a.gt_points or bench.GT_POINTS,
+                                   protocols=a.protocols or bench.MEMORY_PROTOCOLS)
+    print(json.dumps(report, indent=2) if a.json else bench.format_scale_report(report))
+
+
 def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:
     """A plain-text table of metric rows (missing values as '-')."""
     def cell(v):
@@ -609,6 +635,26 @@ def _add_bench_parser(sub) -> None:
     sd.add_argument("--width", type=int, default=1600, help="photo width (DTU 1600; T&T 1920; Mip-NeRF 360 ~5000)")
     sd.add_argument("--height", type=int, default=1200)
     sd.set_defaults(func=_cmd_bench_standin)
+    sc = what.add_parser("scale", help="every stage of the pipeline on a large generated room, each in a process "
+                                       "of its own: wall time and peak memory (--memory: the TSDF and the evaluation "
+                                       "at their memory targets, without training)")
+    sc.add_argument("--memory", action="store_true",
+                    help="no training: fuse the exact depth of VIEWS views at WIDTHxHEIGHT (default 300 at 1920x1080) "
+                         "and score fused meshes against --gt-points ground-truth points (synthetic, tnt, dtu)")
+    sc.add_argument("--views", type=int, help="views of the generated room (default 300)")
+    sc.add_argument("--width", type=int, help="its image width (default 960; --memory: the depth maps', 1920)")
+    sc.add_argument("--height", type=int, help="its image height (default 540; --memory: 1080)")
+    sc.add_argument("--iterations", type=int, help="pretrain and joint iterations (the preset's 1500 at cpu); the "
+                                                   "schedule's other steps stay as configured (--set to move them)")
+    sc.add_argument("--methods", nargs="+", metavar="METHOD", help="trained methods (default: pgsr eve3d)")
+    sc.add_argument("--gt-points", type=int, help="--memory: ground-truth points (and synthetic samples), default 10M")
+    sc.add_argument("--protocols", nargs="+", choices=["synthetic", "tnt", "dtu"],
+                    help="--memory: the evaluations to run (default: all three)")
+    sc.add_argument("--work", help="folder for the generated data, outputs and each stage's log (kept; new or empty); "
+                                   "default a temporary folder")
+    _config_arguments(sc)
+    sc.add_argument("--json", action="store_true", help="machine-readable output")
+    sc.set_defaults(func=_cmd_bench_scale)
     for name, func, config, help in [
             ("methods", _cmd_bench_methods, "methods", "run every method on the generated object and room (Snakemake) "
                                                         "and print scores, times and the priors' accuracy"),
