@@ -1,6 +1,7 @@
 """Per-view maps (depth, confidence, normals) as float32 ``.npz`` with PNG previews."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -20,10 +21,12 @@ def save_maps(path: Path, preview: bool = True, **maps: np.ndarray) -> None:
             write_image(path.with_name(f"{path.stem}.{key}.png"), preview_image(key, arr, arrays.get("depth")))
 
 
-def load_maps(path: Path) -> dict[str, np.ndarray]:
+def load_maps(path: Path, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """The arrays of a map file, or only those of ``keys`` it has (the others are not
+    decompressed: a view's normals are 3× its depth)."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            return {k: data[k] for k in data.files}
+            return {k: data[k] for k in data.files if keys is None or k in keys}
     except Exception as e:
         raise Eve3dError(f"{path}: cannot read map file ({e})") from None
 

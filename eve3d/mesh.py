@@ -22,12 +22,13 @@ BLOCK_RESOLUTION = 8
 
 
 def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
-    """Yield (camera at the map's size, depth with low-confidence pixels zeroed) for every view."""
+    """Yield (camera at the map's size, depth with low-confidence pixels zeroed) for every
+    view, one map read at a time (its depth and confidence only: normals are not decompressed)."""
     for cam in scene.cameras:
         path = depth_dir / f"{cam.view_id}.npz"
         if not path.exists():
             raise Eve3dError(f"{path}: depth map missing for view {cam.view_id}")
-        maps = load_maps(path)
+        maps = load_maps(path, ("depth", "confidence"))
         depth = maps["depth"].astype(np.float32)
         small = map_camera(cam, depth.shape, path)  # fused at the map's size (priors: the pretrain's)
         if "confidence" in maps:
@@ -51,60 +52,107 @@ def _touched(cam: Camera, depth: np.ndarray, stride: int = 2) -> np.ndarray:
     return pts[d > 0]
 
 
-def fused_depths(scene: Scene, depth_dir: Path, s: MeshSettings):
-    """:func:`view_depths`, only the depths within ``depth_max`` and the region of interest."""
+def fused_depths(scene: Scene, depth_dir: Path, s: MeshSettings, desc: str = "", leave: bool = True):
+    """:func:`view_depths`, only the depths within ``depth_max`` and the region of interest
+    (a progress bar ``desc`` when given)."""
     region = scene.region(s.region)
-    for cam, depth in view_depths(scene, depth_dir, s.min_confidence):
+    views = view_depths(scene, depth_dir, s.min_confidence)
+    if desc:
+        views = tqdm(views, total=len(scene.cameras), desc=desc, unit="view", leave=leave)
+    for cam, depth in views:
         if s.depth_max:
             depth = np.where(depth <= s.depth_max, depth, 0)
         yield cam, in_region(cam, depth, region)
 
 
-def plan_grid(scene: Scene, depth_dir: Path, s: MeshSettings) -> tuple[float, int]:
-    """Voxel size and a block count that covers every block the depth maps touch."""
+def _nothing_to_fuse(depth_dir: Path) -> Eve3dError:
+    return Eve3dError(f"{depth_dir}: no valid depth in any view, nothing to fuse")
+
+
+def scene_voxel(scene: Scene, depth_dir: Path, s: MeshSettings) -> float:
+    """An open scene's voxel: the largest extent of the fused points (their 0.5–99.5 %
+    per axis, within the region: a sky sets no size) / 2048 × ``coarsen``, from a sample of
+    20–40 thousand points of each view (what this pass holds: about 1 MB a view)."""
     pts = []
-    for cam, depth in fused_depths(scene, depth_dir, s):
+    for cam, depth in fused_depths(scene, depth_dir, s, "TSDF voxel", leave=False):
         sample = _touched(cam, depth, stride=4)
         pts.append(sample[:: max(1, len(sample) // 20000)])
     pts = np.concatenate(pts) if pts else np.zeros((0, 3))
     if not len(pts):
-        raise Eve3dError(f"{depth_dir}: no valid depth in any view, nothing to fuse")
+        raise _nothing_to_fuse(depth_dir)
+    extent = [np.subtract(*np.percentile(pts[:, k], [99.5, 0.5])) for k in range(3)]  # a column's copy at a time
+    return float(np.max(extent)) / 2048 * s.coarsen
+
+
+def _grid(voxel: float, blocks: int):
+    """An empty TSDF grid (tsdf, weight, colour) of ``blocks`` preallocated blocks of
+    BLOCK_RESOLUTION³ voxels: about 10 KB a block."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    return o3d.t.geometry.VoxelBlockGrid(
+        attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+        attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=BLOCK_RESOLUTION,
+        block_count=blocks, device=o3c.Device("CPU:0"))
+
+
+def _frame(cam: Camera, depth: np.ndarray):
+    """open3d's intrinsics, extrinsics and depth image of a view."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    return (o3c.Tensor(cam.K, o3c.float64), o3c.Tensor(cam.world_to_camera, o3c.float64),
+            o3d.t.geometry.Image(o3c.Tensor(depth)))
+
+
+def block_count(scene: Scene, depth_dir: Path, s: MeshSettings, voxel: float) -> int:
+    """The blocks the fusion allocates, exactly: the union of the blocks each view touches
+    (open3d's own test, ``compute_unique_block_coordinates``, gathered in a hash set),
+    plus the most that one view touches. open3d grows the grid's hash map (a copy of
+    every block) whenever its size plus a view's blocks would pass its capacity; with this
+    capacity it never does, and nothing is allocated that no view reaches."""
+    import open3d.core as o3c
+
+    probe, depth_max = _grid(voxel, 1), float(s.depth_max) if s.depth_max else 1e6
+    touched = o3c.HashSet(1024, o3c.int32, (3,), o3c.Device("CPU:0"))
+    most = 0
+    for cam, depth in fused_depths(scene, depth_dir, s, "TSDF blocks", leave=False):
+        if not (depth > 0).any():
+            continue
+        intrinsic, extrinsic, depth_img = _frame(cam, depth)
+        coords = probe.compute_unique_block_coordinates(depth_img, intrinsic, extrinsic, 1.0, depth_max,
+                                                        trunc_voxel_multiplier=s.trunc_factor)
+        touched.insert(coords)
+        most = max(most, len(coords))
+    if not touched.size():
+        raise _nothing_to_fuse(depth_dir)
+    return touched.size() + most
+
+
+def plan_grid(scene: Scene, depth_dir: Path, s: MeshSettings) -> tuple[float, int]:
+    """Voxel size and the block count of the grid (:func:`block_count`). Each pass reads
+    the depth maps one at a time."""
     voxel = s.voxel
     if voxel is None:
-        if scene.kind == "object":
-            voxel = 0.002 * scene.object_radius * s.coarsen
-        else:
-            lo, hi = np.percentile(pts, [0.5, 99.5], axis=0)  # within the region: a sky sets no size
-            voxel = float(np.max(hi - lo)) / 2048 * s.coarsen
-    block = voxel * BLOCK_RESOLUTION
-    keys = np.unique(np.floor(pts / block).astype(np.int64), axis=0)
-    # The truncation band reaches trunc_factor voxels off the surface: dilate by one block
-    # (more when the band is wider than a block) and add headroom for the sparser sample.
-    reach = int(np.ceil(s.trunc_factor / BLOCK_RESOLUTION)) + 1
-    offsets = np.stack(np.meshgrid(*[np.arange(-reach, reach + 1)] * 3), -1).reshape(-1, 3)
-    dilated = np.unique((keys[:, None] + offsets[None]).reshape(-1, 3), axis=0)
-    return voxel, int(len(dilated) * 1.5) + 1000
+        voxel = 0.002 * scene.object_radius * s.coarsen if scene.kind == "object" else scene_voxel(scene, depth_dir, s)
+    return voxel, block_count(scene, depth_dir, s, voxel)
 
 
 def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
-    """TSDF-fuse the depth maps in ``depth_dir`` (``{view}.npz``) → open3d legacy mesh."""
+    """TSDF-fuse the depth maps in ``depth_dir`` (``{view}.npz``) → open3d legacy mesh. The
+    maps are read one at a time (one pass for the voxel of an open scene, one for the grid's
+    size, one to fuse), so memory is the grid's and one view's."""
     import open3d as o3d
     import open3d.core as o3c
 
     s = settings or MeshSettings()
     voxel, blocks = plan_grid(scene, depth_dir, s)
     depth_max = float(s.depth_max) if s.depth_max else 1e6
-    vbg = o3d.t.geometry.VoxelBlockGrid(
-        attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
-        attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=BLOCK_RESOLUTION,
-        block_count=blocks, device=o3c.Device("CPU:0"))
-    for cam, depth in tqdm(fused_depths(scene, depth_dir, s), total=len(scene.cameras),
-                           desc=f"TSDF (voxel {voxel:.4g})", unit="view"):
+    vbg = _grid(voxel, blocks)
+    for cam, depth in fused_depths(scene, depth_dir, s, f"TSDF (voxel {voxel:.4g}, {blocks} blocks)"):
         if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
             continue
-        intrinsic = o3c.Tensor(cam.K, o3c.float64)
-        extrinsic = o3c.Tensor(cam.world_to_camera, o3c.float64)
-        depth_img = o3d.t.geometry.Image(o3c.Tensor(depth))
+        intrinsic, extrinsic, depth_img = _frame(cam, depth)
         if cam.image_path is not None and cam.image_path.exists():
             rgb = read_view(cam).astype(np.float32) / 255.0
         else:
@@ -115,6 +163,7 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
                       trunc_voxel_multiplier=s.trunc_factor)
     mesh = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold).to_legacy()
+    del vbg
     region = scene.region(s.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths
         mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(*region))

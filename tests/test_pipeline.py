@@ -74,3 +74,33 @@ def test_canonical_order_ignores_the_order_a_mesh_comes_in():
     outward = lambda m: np.einsum("ij,ij->i", np.asarray(m.triangle_normals),  # noqa: E731
                                   np.asarray(m.vertices)[np.asarray(m.triangles)].mean(1))
     assert (outward(a) > 0).all() and (outward(sphere) > 0).all()
+
+
+@pytest.mark.parametrize("kind", ["object", "room"])
+def test_fusion_allocates_exactly_the_blocks_it_fuses(kind, tmp_path, monkeypatch):
+    """The grid is sized, reading a view at a time, to the blocks the views touch plus
+    one view's worth, so open3d never grows it; and the mesh is the one a grid of 8 times
+    as many blocks gives (the size only holds blocks), vertex for vertex."""
+    from eve3d import mesh as meshing
+    from eve3d.io import load_scene
+    from eve3d.priors.oracle import oracle_priors
+    from eve3d.settings import MeshSettings
+
+    scene = load_scene(generate(kind, tmp_path / kind, views=8, width=96, height=72))
+    oracle_priors(scene, tmp_path / "depth", preview=False)
+    made, make = [], meshing._grid
+
+    def recorded(voxel, blocks):
+        made.append((blocks, make(voxel, blocks)))
+        return made[-1][1]
+
+    monkeypatch.setattr(meshing, "_grid", recorded)
+    settings = MeshSettings(coarsen=5)
+    exact = meshing.fuse(scene, tmp_path / "depth", settings)
+    blocks, grid = made[-1]
+    assert grid.hashmap().capacity() == blocks and 0 < grid.hashmap().size() < blocks  # it never grew
+    monkeypatch.setattr(meshing, "block_count", lambda *args: 8 * blocks)
+    generous = meshing.fuse(scene, tmp_path / "depth", settings)
+    assert made[-1][1].hashmap().size() == grid.hashmap().size()
+    for key in ("vertices", "triangles", "vertex_colors"):
+        assert np.array_equal(np.asarray(getattr(exact, key)), np.asarray(getattr(generous, key))), key
