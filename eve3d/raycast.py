@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.chunking import chunks
 from eve3d.scene import Camera, Eve3dError
 
 
@@ -105,14 +106,20 @@ def seen_by(caster: MeshRaycaster, cams: list[Camera], points: np.ndarray, stop_
     """Yield (camera index, indices of the points it sees): a camera sees a point that lies
     in front of it, inside its image, with no surface more than ``rel_tol`` of the way
     along the ray from its centre (a ray that meets nothing at all passed a triangle edge:
-    seen). Points already seen by ``stop_at`` cameras are not tested against the rest."""
+    seen). Points already seen by ``stop_at`` cameras are not tested against the rest.
+    Each camera projects and casts a chunk of points at a time (:mod:`eve3d.chunking`; a
+    ray's results alone are 32 bytes)."""
     points = np.asarray(points, dtype=np.float64)
     count = np.zeros(len(points), dtype=np.int64)
     for ci, cam in enumerate(cams):
         todo = np.arange(len(points)) if stop_at is None else np.flatnonzero(count < stop_at)
-        todo = todo[cam.in_image(*cam.project(points[todo]))]
-        # Rays from the centre with the point at t = 1.
-        seen = todo[caster.hit_distances(cam.center, points[todo] - cam.center) >= 1 - rel_tol]
+        seen = []
+        for part in chunks(len(todo)):
+            part = todo[part]
+            part = part[cam.in_image(*cam.project(points[part]))]
+            # Rays from the centre with the point at t = 1.
+            seen.append(part[caster.hit_distances(cam.center, points[part] - cam.center) >= 1 - rel_tol])
+        seen = np.concatenate(seen) if seen else np.zeros(0, dtype=np.int64)
         count[seen] += 1
         yield ci, seen
 

@@ -241,3 +241,56 @@ def test_protocol_defaults_and_requirements_are_named(tmp_path, object_dataset):
         scene_protocol("d", {"path": str(object_dataset), "protocol": "tnt"})
     with pytest.raises(Eve3dError, match="has no poses, and SfM would pose it in a frame of its own"):
         scene_protocol("e", {"path": str(object_dataset / "images"), "gt_mesh": "gt.ply"})
+
+
+def test_protocols_score_the_same_a_chunk_at_a_time(tiny_scene, tmp_path, monkeypatch):
+    """The synthetic, dtu and tnt protocols go through large clouds a chunk of points at a
+    time (eve3d.chunking): with chunks of 1000 points (200 for the thinning's neighbour
+    lists) every score equals the one from a single chunk. (open3d's threaded RANSAC and ICP
+    move the T&T transform and its residual in their last digits from one run to the next,
+    chunked or not.)"""
+    import open3d as o3d
+
+    from eve3d import chunking
+    from eve3d.benchmarks import dtu_files
+    from eve3d.standin import write_dtu_release, write_tnt_release
+
+    gt = read_mesh(tiny_scene.gt_mesh)
+    tri = split_long_edges(np.asarray(gt.vertices)[np.asarray(gt.triangles)], 0.1) + [0.004, -0.002, 0.003]
+    recon = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(tri.reshape(-1, 3)),
+                                      o3d.utility.Vector3iVector(np.arange(3 * len(tri)).reshape(-1, 3)))
+    o3d.io.write_triangle_mesh(str(tmp_path / "recon.ply"), recon)
+    dtu_scan = write_dtu_release(tiny_scene, tmp_path / "dtu", stl_points=20_000)
+    files = dtu_files(tmp_path / "dtu", dtu_scan.name)
+    tnt = write_tnt_release(tiny_scene, tmp_path / "tnt", gt_points=20_000)
+    cases = {"synthetic": dict(scene=tiny_scene, gt=tiny_scene.gt_mesh),
+             "dtu": dict(scene=load_scene(dtu_scan), gt=files["stl"], obs_mask=files["obs_mask"], plane=files["plane"]),
+             "tnt": dict(scene=load_scene(tnt))}
+    settings = EvalSettings(samples=5000, dtu_density=1.0)
+
+    def scores():
+        out = {}
+        for name, kw in cases.items():
+            m = PROTOCOLS[name].run(EvalInputs(reconstruction=tmp_path / "recon.ply", out=tmp_path / name / "m.json",
+                                               settings=settings, **kw))
+            out[name] = {k: v for k, v in m.items() if k != "versions"}
+        return out
+
+    whole = scores()
+    assert whole["synthetic"]["n_gt"] == 5000 and min(whole["dtu"]["n_recon"], whole["tnt"]["n_gt"]) > 3000, whole
+    monkeypatch.setattr(chunking, "CHUNK", 1000)
+    chunked = scores()
+    for key in ("transformation", "alignment_rmse"):
+        assert np.allclose(chunked["tnt"].pop(key), whole["tnt"].pop(key), rtol=0, atol=1e-9), key
+    assert chunked == whole
+
+
+def test_median_without_a_float64_copy_is_numpys():
+    """depth_accuracy's median of float32 errors equals np.median of their float64 copy."""
+    from eve3d.evaluate.depth import median
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 7, 10_000, 10_001):
+        x = (rng.normal(size=n) * 1e-3).astype(np.float32)
+        assert median(x) == float(np.median(x.astype(np.float64)))
+    assert np.isnan(median(np.array([1.0, np.nan], np.float32)))

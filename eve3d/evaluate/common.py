@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from eve3d.chunking import chunks
 from eve3d.scene import Eve3dError
 
 
@@ -21,16 +22,22 @@ def read_mesh(path: Path):
     return mesh
 
 
-def nearest_distances(query: np.ndarray, reference: np.ndarray, upper_bound: float = np.inf) -> np.ndarray:
+def nearest_distances(query: np.ndarray, reference: np.ndarray, upper_bound: float = np.inf,
+                      chunk: int | None = None) -> np.ndarray:
     """Distance from each query point to its nearest reference point; ``inf`` where none is
     closer than ``upper_bound``. A finite bound keeps the search short for points far from
-    a dense reference (floaters), which otherwise visit most of the tree."""
+    a dense reference (floaters), which otherwise visit most of the tree. Queried ``chunk``
+    points at a time (:mod:`eve3d.chunking`)."""
     if not len(reference):
         return np.full(len(query), np.inf)
-    return cKDTree(reference).query(query, k=1, distance_upper_bound=upper_bound, workers=-1)[0]
+    tree = cKDTree(reference)
+    out = np.empty(len(query))
+    for part in chunks(len(query), chunk):
+        out[part] = tree.query(query[part], k=1, distance_upper_bound=upper_bound, workers=-1)[0]
+    return out
 
 
-def mesh_distances(mesh, points: np.ndarray, chunk: int = 1_000_000) -> np.ndarray:
+def mesh_distances(mesh, points: np.ndarray, chunk: int | None = None) -> np.ndarray:
     """Exact unsigned distance from each point to the nearest triangle of ``mesh`` (open3d's
     BVH point query), in chunks so memory stays bounded."""
     import open3d as o3d
@@ -42,9 +49,9 @@ def mesh_distances(mesh, points: np.ndarray, chunk: int = 1_000_000) -> np.ndarr
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(centred))
     out = np.empty(len(points))
-    for i in range(0, len(points), chunk):
-        part = o3d.core.Tensor(np.ascontiguousarray(points[i:i + chunk] - centre, dtype=np.float32))
-        out[i:i + chunk] = scene.compute_distance(part).numpy()
+    for part in chunks(len(points), chunk):
+        out[part] = scene.compute_distance(o3d.core.Tensor(np.ascontiguousarray(points[part] - centre,
+                                                                               dtype=np.float32))).numpy()
     return out
 
 

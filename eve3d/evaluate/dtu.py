@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from eve3d import chunking
+from eve3d.chunking import chunks
 from eve3d.evaluate import EvalInputs
 from eve3d.evaluate.common import nearest_distances, read_mesh, write_error_maps
 from eve3d.scene import Camera, Eve3dError, Scene
@@ -43,17 +45,21 @@ def mask_cameras(scene: Scene) -> list[Camera]:
 
 def on_mask(cam: Camera, points: np.ndarray, dilation: int = MASK_DILATION) -> tuple[np.ndarray, np.ndarray]:
     """Which ``points`` fall in ``cam``'s image (in front of it), and of those which fall on
-    a pixel of its object mask dilated by a disk of ``dilation`` px."""
+    a pixel of its object mask dilated by a disk of ``dilation`` px (projected a chunk of
+    points at a time)."""
     import cv2
     from skimage.morphology import disk
 
     from eve3d.fileio import read_mask
 
     mask = cv2.dilate(read_mask(cam.mask_path).astype(np.uint8), disk(dilation).astype(np.uint8)) > 0
-    uv, z = cam.project(points)
-    inside = cam.in_image(uv, z)
-    px = np.floor(uv[inside]).astype(np.int64)  # the pixel a point falls in (centres at +0.5)
-    return inside, mask[px[:, 1], px[:, 0]]
+    inside, hit = np.zeros(len(points), dtype=bool), []
+    for part in chunks(len(points)):
+        uv, z = cam.project(points[part])
+        inside[part] = cam.in_image(uv, z)
+        px = np.floor(uv[inside[part]]).astype(np.int64)  # the pixel a point falls in (centres at +0.5)
+        hit.append(mask[px[:, 1], px[:, 0]])
+    return inside, np.concatenate(hit) if hit else np.zeros(0, dtype=bool)
 
 
 def cull_by_masks(mesh, scene: Scene, dilation: int = MASK_DILATION):
@@ -95,8 +101,12 @@ def read_ground_truth(inputs: EvalInputs) -> tuple[np.ndarray, tuple[np.ndarray,
 
 
 def above_plane(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """Which points lie above the ground plane P (P·[x, 1] > 0): the object, not the table."""
-    return np.concatenate([points, np.ones((len(points), 1))], 1) @ plane > 0
+    """Which points lie above the ground plane P (P·[x, 1] > 0): the object, not the table
+    (a chunk of homogeneous points at a time)."""
+    above = np.empty(len(points), dtype=bool)
+    for part in chunks(len(points)):
+        above[part] = np.concatenate([points[part], np.ones((part.stop - part.start, 1))], 1) @ plane > 0
+    return above
 
 
 def check_alignment(inputs: EvalInputs) -> dict:
@@ -148,23 +158,28 @@ def dtu_sample_mesh(vertices: np.ndarray, triangles: np.ndarray, density: float)
 
 
 def _group_by_counts(n1: np.ndarray, n2: np.ndarray):
-    """Triangles grouped by their (n1, n2) sample counts, so each group samples in one go."""
+    """Triangles grouped by their (n1, n2) sample counts, so each group samples in one go
+    (each group's indices in increasing order; one sort, not one pass per group)."""
     keys = np.stack([n1, n2], 1).astype(np.int64)
     uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.searchsorted(inverse[order], np.arange(len(uniq) + 1))
     for k, (a, b) in enumerate(uniq):
-        yield (int(a), int(b)), np.flatnonzero(inverse.ravel() == k)
+        yield (int(a), int(b)), order[bounds[k]:bounds[k + 1]]
 
 
 def radius_thin(points: np.ndarray, radius: float, rng: np.random.Generator) -> np.ndarray:
     """DTUeval-python's greedy thinning: in random order, keep a point and drop every other
-    point within ``radius`` of it."""
+    point within ``radius`` of it (neighbours looked up a chunk of points at a time)."""
     points = points[rng.permutation(len(points))]
     tree = cKDTree(points)
     keep = np.ones(len(points), dtype=bool)
-    for i, nbrs in enumerate(tree.query_ball_point(points, r=radius, workers=-1)):
-        if keep[i]:
-            keep[nbrs] = False
-            keep[i] = True
+    for part in chunks(len(points), max(1, chunking.CHUNK // 5)):  # Python lists: ~300 bytes a point
+        for i, nbrs in enumerate(tree.query_ball_point(points[part], r=radius, workers=-1), start=part.start):
+            if keep[i]:
+                keep[nbrs] = False
+                keep[i] = True
     return points[keep]
 
 
@@ -177,10 +192,13 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     if len(mesh.triangles) == 0:
         raise Eve3dError(f"{inputs.reconstruction}: nothing of the mesh lies inside the object masks")
     mesh.transform(scene.to_world)
-    data = dtu_sample_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), s.dtu_density)
-    data = radius_thin(data, s.dtu_density, rng)
+    # the samples before thinning are held only while they are thinned
+    data = radius_thin(dtu_sample_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), s.dtu_density),
+                       s.dtu_density, rng)
+    del mesh
     inbound = np.all((data >= bb[:1] - patch) & (data < bb[1:] + patch * 2), axis=1)
     data_in = data[inbound]
+    del data
     grid = np.around((data_in - bb[:1]) / res).astype(np.int32)
     grid_ok = np.all((grid >= 0) & (grid < np.array(obs_mask.shape)), axis=1)
     in_obs = obs_mask[grid[grid_ok, 0], grid[grid_ok, 1], grid[grid_ok, 2]].astype(bool)
@@ -188,6 +206,7 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     # Distances at or beyond max_dist are left out of the means, so the search stops there.
     d2s = nearest_distances(data_in_obs, stl, s.dtu_max_dist)
     stl_above = stl[above_plane(stl, plane)]
+    del stl
     s2d = nearest_distances(stl_above, data_in, s.dtu_max_dist)
     near_d2s, near_s2d = d2s[d2s < s.dtu_max_dist], s2d[s2d < s.dtu_max_dist]
     if not len(near_d2s) or not len(near_s2d):

@@ -121,10 +121,11 @@ def crop_and_downsample(pcd, volume, transform: np.ndarray | None = None, voxel:
     (``voxel``) or uniformly thinned to about ``max_points`` when it has more."""
     import open3d as o3d
 
-    moved = o3d.geometry.PointCloud(pcd)
+    moved = pcd  # cropping makes a new cloud: a copy only to move it
     if transform is not None:
-        moved.transform(np.asarray(transform, dtype=np.float64))
+        moved = o3d.geometry.PointCloud(pcd).transform(np.asarray(transform, dtype=np.float64))
     cropped = volume.crop_point_cloud(moved)
+    del moved
     if voxel is not None:
         return cropped.voxel_down_sample(voxel)
     if max_points is not None and len(cropped.points) > max_points:
