@@ -846,29 +846,42 @@ class StageRun:
 
     @property
     def label(self) -> str:
-        return " ".join(filter(None, (self.stage, self.detail)))
+        return f"{self.stage} {self.detail}".strip()
+
+
+_PEAK_AT_EXIT = ("import atexit, sys\n"
+                 "from eve3d.bench import peak_rss_mb\n"
+                 "out = sys.argv.pop(1)\n"
+                 "atexit.register(lambda: open(out, 'w').write(str(peak_rss_mb())))\n"
+                 "from eve3d.cli import main\n"
+                 "sys.exit(main(sys.argv[1:]))\n")
+"""``python -c`` code that runs ``eve3d ARGS`` and writes its peak memory to a file at exit."""
 
 
 def run_stage(stage: str, detail: str, args: Sequence, log: Path) -> StageRun:
-    """``python -m eve3d ARGS``, as the workflow runs a job, in a child process writing to
-    ``log``: its wall time and its own peak memory (``os.wait4``'s rusage of that child;
-    ``RUSAGE_CHILDREN`` would give the largest of all children so far). A failure raises an
-    error ending with the log's last lines."""
+    """``eve3d ARGS``, as the workflow runs a job, in a child process writing to ``log``:
+    its wall time and its own peak memory (VmHWM, which the child writes as it exits: a
+    child's rusage starts from its parent's peak). A failure raises an error ending with
+    the log's last lines."""
     import os
     import subprocess
     import sys
 
+    from eve3d.config import REPO
+
     log.parent.mkdir(parents=True, exist_ok=True)
+    peak = log.with_suffix(".peak_mb")
+    # this checkout's package, wherever the bench runs from (the workflow's jobs do the same)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(REPO), os.environ.get("PYTHONPATH"))))}
     start = time.perf_counter()
     with open(log, "w") as out:
-        child = subprocess.Popen([sys.executable, "-m", "eve3d", *map(str, args)], stdout=out, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(child.pid, 0)
-    child.returncode = os.waitstatus_to_exitcode(status)
-    run = StageRun(stage, detail, time.perf_counter() - start, usage.ru_maxrss / 1024, os.getloadavg()[0])
-    if child.returncode:
+        code = subprocess.run([sys.executable, "-c", _PEAK_AT_EXIT, peak, *map(str, args)], stdout=out,
+                              stderr=subprocess.STDOUT, env=env).returncode
+    seconds = time.perf_counter() - start
+    if code:
         tail = "\n  ".join(log.read_text(errors="replace").splitlines()[-5:])
-        raise Eve3dError(f"bench scale: {run.label} failed (exit {child.returncode}, log {log}):\n  {tail}")
-    return run
+        raise Eve3dError(f"bench scale: {stage} {detail} failed (exit {code}, log {log}):\n  {tail}")
+    return StageRun(stage, detail, seconds, float(peak.read_text()), os.getloadavg()[0])
 
 
 def run_setup(stage: str, detail: str, fn: Callable, args: tuple) -> StageRun:
