@@ -6,12 +6,15 @@ depth maps actually touch.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from eve3d import chunking
+from eve3d.chunking import chunks
 from eve3d.fileio import atomic_path
 from eve3d.photos import read_view
 from eve3d.maps import load_maps, map_camera
@@ -36,20 +39,32 @@ def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
         yield small, depth
 
 
+def _row_bands(cam: Camera, multiple: int = 1) -> Iterator[slice]:
+    """Bands of ``cam``'s image rows, each starting at a multiple of ``multiple``, of about a
+    quarter of a chunk of pixels (:mod:`eve3d.chunking`): a band's back-projection is a few
+    MB, a 1920×1080 image's about 50 MB a float64 array, of which it makes several."""
+    return chunks(cam.height, max(multiple, chunking.CHUNK // 4 // cam.width // multiple * multiple))
+
+
 def in_region(cam: Camera, depth: np.ndarray, region: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
-    """``depth`` with every pixel whose point lies outside ``region`` (lo, hi) zeroed."""
+    """``depth`` with every pixel whose point lies outside ``region`` (lo, hi) zeroed
+    (back-projected a band of rows at a time)."""
     if region is None:
         return depth
-    points = cam.backproject(depth)
-    inside = np.all((points >= region[0]) & (points <= region[1]), axis=-1)
+    inside = np.empty(depth.shape, dtype=bool)
+    for rows in _row_bands(cam):
+        points = cam.backproject(depth, rows)
+        inside[rows] = np.all((points >= region[0]) & (points <= region[1]), axis=-1)
     return np.where(inside, depth, 0).astype(np.float32)
 
 
 def _touched(cam: Camera, depth: np.ndarray, stride: int = 2) -> np.ndarray:
-    """World points of every ``stride``-th valid pixel."""
-    d = depth[::stride, ::stride]
-    pts = cam.backproject(depth)[::stride, ::stride]
-    return pts[d > 0]
+    """World points of every ``stride``-th valid pixel, in row-major order (back-projected
+    a band of rows at a time)."""
+    pts = []
+    for rows in _row_bands(cam, stride):
+        pts.append(cam.backproject(depth, rows)[::stride, ::stride][depth[rows][::stride, ::stride] > 0])
+    return np.concatenate(pts)
 
 
 def fused_depths(scene: Scene, depth_dir: Path, s: MeshSettings, desc: str = "", leave: bool = True):
@@ -76,11 +91,11 @@ def scene_voxel(scene: Scene, depth_dir: Path, s: MeshSettings) -> float:
     pts = []
     for cam, depth in fused_depths(scene, depth_dir, s, "TSDF voxel", leave=False):
         sample = _touched(cam, depth, stride=4)
-        pts.append(sample[:: max(1, len(sample) // 20000)])
-    pts = np.concatenate(pts) if pts else np.zeros((0, 3))
-    if not len(pts):
+        pts.append(sample[:: max(1, len(sample) // 20000)].copy())  # a view would keep all of `sample`
+    if not sum(map(len, pts)):
         raise _nothing_to_fuse(depth_dir)
-    extent = [np.subtract(*np.percentile(pts[:, k], [99.5, 0.5])) for k in range(3)]  # a column's copy at a time
+    # one coordinate of every sample at a time: a third of them copied, not all twice
+    extent = [np.subtract(*np.percentile(np.concatenate([p[:, k] for p in pts]), [99.5, 0.5])) for k in range(3)]
     return float(np.max(extent)) / 2048 * s.coarsen
 
 

@@ -93,17 +93,19 @@ class Camera:
         with np.errstate(invalid="ignore"):
             return (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < self.width) & (uv[:, 1] >= 0) & (uv[:, 1] < self.height)
 
-    def pixel_rays(self) -> np.ndarray:
+    def pixel_rays(self, rows: slice = slice(None)) -> np.ndarray:
         """World-space ray directions (H,W,3) through pixel centres, scaled so that a
-        point at ray parameter s has camera depth z = s."""
-        u, v = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        point at ray parameter s has camera depth z = s; of the image rows ``rows`` only
+        when given (the same values: the products go row by row either way)."""
+        u, v = np.meshgrid(np.arange(self.width) + 0.5, (np.arange(self.height) + 0.5)[rows])
         pix = np.stack([u, v, np.ones_like(u)], axis=-1)
         cam_dirs = pix @ np.linalg.inv(self.K).T
         return cam_dirs @ self.R
 
-    def backproject(self, depth: np.ndarray) -> np.ndarray:
-        """Depth map (H,W) of camera z → world points (H,W,3)."""
-        return self.center + self.pixel_rays() * depth[..., None]
+    def backproject(self, depth: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+        """Depth map (H,W) of camera z → world points (H,W,3); of its rows ``rows`` only
+        when given (float64: 24 bytes a pixel, so a large image goes a band at a time)."""
+        return self.center + self.pixel_rays(rows) * depth[rows][..., None]
 
     def scaled(self, factor: float) -> Camera:
         """The same view at image size × factor (training at a reduced resolution); the
