@@ -22,6 +22,10 @@ from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.settings import MeshSettings
 
 BLOCK_RESOLUTION = 8
+MAX_BLOCKS = 2**31 // (BLOCK_RESOLUTION**3 * 16)
+"""Blocks open3d (0.20, CPU) can extract a mesh from: its marching cubes keeps 4 int32 per
+voxel and addresses them with 32-bit byte offsets, so past 262,144 blocks it crashes
+(segmentation fault, measured: 262,144 extract, 262,200 do not)."""
 
 
 def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
@@ -141,6 +145,11 @@ def block_count(scene: Scene, depth_dir: Path, s: MeshSettings, voxel: float) ->
         most = max(most, len(coords))
     if not touched.size():
         raise _nothing_to_fuse(depth_dir)
+    if touched.size() > MAX_BLOCKS:  # refused before the fusion, not a crash after it
+        raise Eve3dError(f"{depth_dir}: at voxel {voxel:.4g} the views touch {touched.size():,} blocks of "
+                         f"{BLOCK_RESOLUTION}³ voxels; open3d extracts a mesh from at most {MAX_BLOCKS:,}. Use a voxel "
+                         f"about {1.05 * np.sqrt(touched.size() / MAX_BLOCKS):.2g}× as large (mesh.coarsen, "
+                         f"mesh.voxel) or a smaller region (mesh.region)")
     return touched.size() + most
 
 
@@ -177,8 +186,10 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
                                                       trunc_voxel_multiplier=s.trunc_factor)
         vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
                       trunc_voxel_multiplier=s.trunc_factor)
-    mesh = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold).to_legacy()
-    del vbg
+    extracted = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold)
+    del vbg  # the grid goes before the mesh is converted (each a few GB at the DESIGN voxel on a large scene)
+    mesh = extracted.to_legacy()
+    del extracted
     region = scene.region(s.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths
         mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(*region))

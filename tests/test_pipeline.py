@@ -104,3 +104,22 @@ def test_fusion_allocates_exactly_the_blocks_it_fuses(kind, tmp_path, monkeypatc
     assert made[-1][1].hashmap().size() == grid.hashmap().size()
     for key in ("vertices", "triangles", "vertex_colors"):
         assert np.array_equal(np.asarray(getattr(exact, key)), np.asarray(getattr(generous, key))), key
+
+
+def test_fusion_past_what_open3d_extracts_is_refused_before_fusing(tiny_dataset, tmp_path, monkeypatch):
+    """A grid of more blocks than open3d's mesh extraction handles (it crashes past
+    262,144) stops with an error that names the remedy, before any view is fused."""
+    from eve3d import mesh as meshing
+    from eve3d.io import load_scene
+    from eve3d.priors.oracle import oracle_priors
+    from eve3d.scene import Eve3dError
+    from eve3d.settings import MeshSettings
+
+    scene = load_scene(tiny_dataset)
+    oracle_priors(scene, tmp_path / "depth", preview=False)
+    made, make = [], meshing._grid
+    monkeypatch.setattr(meshing, "_grid", lambda voxel, blocks: made.append(blocks) or make(voxel, blocks))
+    monkeypatch.setattr(meshing, "MAX_BLOCKS", 10)
+    with pytest.raises(Eve3dError, match=r"open3d extracts a mesh from at most 10\. Use a voxel about [\d.]+× as large"):
+        meshing.fuse(scene, tmp_path / "depth", MeshSettings(coarsen=5))
+    assert made == [1]  # the probe that counts the blocks, no grid to fuse into
