@@ -843,6 +843,8 @@ class StageRun:
     """The process's peak resident memory."""
     load: float
     """The 1-minute load average when it ended (other jobs on the machine show up here)."""
+    error: str | None = None
+    """Why it failed (the last line of its log); None when it ran through."""
 
     @property
     def label(self) -> str:
@@ -861,8 +863,8 @@ _PEAK_AT_EXIT = ("import atexit, sys\n"
 def run_stage(stage: str, detail: str, args: Sequence, log: Path) -> StageRun:
     """``eve3d ARGS``, as the workflow runs a job, in a child process writing to ``log``:
     its wall time and its own peak memory (VmHWM, which the child writes as it exits: a
-    child's rusage starts from its parent's peak). A failure raises an error ending with
-    the log's last lines."""
+    child's rusage starts from its parent's peak; NaN when it was killed). A failure is
+    returned with the log's last line as its ``error``."""
     import os
     import subprocess
     import sys
@@ -878,10 +880,12 @@ def run_stage(stage: str, detail: str, args: Sequence, log: Path) -> StageRun:
         code = subprocess.run([sys.executable, "-c", _PEAK_AT_EXIT, peak, *map(str, args)], stdout=out,
                               stderr=subprocess.STDOUT, env=env).returncode
     seconds = time.perf_counter() - start
+    error = None
     if code:
-        tail = "\n  ".join(log.read_text(errors="replace").splitlines()[-5:])
-        raise Eve3dError(f"bench scale: {stage} {detail} failed (exit {code}, log {log}):\n  {tail}")
-    return StageRun(stage, detail, seconds, float(peak.read_text()), os.getloadavg()[0])
+        last = [line.strip() for line in log.read_text(errors="replace").splitlines() if line.strip()][-1:]
+        error = f"exit {code}: {last[0] if last else 'no output'} (log {log})"
+    return StageRun(stage, detail, seconds, float(peak.read_text()) if peak.exists() else float("nan"),
+                    os.getloadavg()[0], error)
 
 
 def run_setup(stage: str, detail: str, fn: Callable, args: tuple) -> StageRun:
@@ -1050,14 +1054,21 @@ def bench_scale(work: Path, config: dict, memory: bool = False, kind: str = SCAL
         steps = memory_stages(work, config_file, kind, synthetic.views, size, gt_points, protocols)
     else:
         steps = [(*step, None) for step in pipeline_stages(work, config_file, kind, methods)]
-    rows = []
+    rows, failed = [], set()
     for i, (stage, detail, run, args) in enumerate(steps):
+        if detail in failed:  # a method's mesh and evaluation after its training failed
+            continue
         if callable(run):
             row = run_setup(stage, detail, run, args)
         else:
             row = run_stage(stage, detail, run, work / "logs" / f"{i:02d}_{stage.replace(' ', '_')}.log")
-        print(f"bench scale: {row.label}: {row.seconds:.0f} s, peak {row.peak_mb:.0f} MB", file=sys.stderr, flush=True)
+        print(f"bench scale: {row.label}: {row.seconds:.0f} s, peak {row.peak_mb:.0f} MB"
+              + (f", failed ({row.error})" if row.error else ""), file=sys.stderr, flush=True)
         rows.append(row)
+        if row.error:
+            if memory or detail not in methods:  # what every later stage reads
+                raise Eve3dError(f"bench scale: {row.label} failed, {row.error}")
+            failed.add(detail)
     scores = {}
     for path in sorted(work.rglob(METRICS_FILE)):
         m = json.loads(path.read_text())
@@ -1079,11 +1090,11 @@ def format_scale_report(report: dict) -> str:
     head = f"{'stage':<14} {'detail':<{w}} {'seconds':>8} {'peak MB':>8} {'load':>5}"
     lines = [head, "-" * len(head)]
     lines += [f"{r['stage']:<14} {r['detail']:<{w}} {r['seconds']:>8.0f} {r['peak_mb']:>8.0f} {r['load']:>5.1f}"
-              for r in rows]
+              + (f"  FAILED {r['error']}" if r.get("error") else "") for r in rows]
     top = max(rows, key=lambda r: r["peak_mb"])
     total = sum(r["seconds"] for r in rows)
     lines += ["-" * len(head), f"{'total':<14} {'':<{w}} {total:>8.0f} {top['peak_mb']:>8.0f}  "
-                               f"({total / 60:.1f} min; largest peak: {top['stage']} {top['detail']})"]
+                               f"({total / 60:.1f} min; largest peak: {top['stage']} {top['detail']}".rstrip() + ")"]
     if report["scores"]:
         lines += ["", f"{'scores':<40} {'precision':>9} {'recall':>7} {'F':>7} {'chamfer':>9}"]
         cell = lambda v, w, f: f"{'-' if v is None else format(v, f):>{w}}"  # noqa: E731

@@ -331,8 +331,8 @@ def _cmd_bench_scale(a: argparse.Namespace) -> None:
     config = job_config(a.config, a.set, flags)
     with contextlib.ExitStack() as stack:
         work = Path(a.work) if a.work else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="eve3d-scale-")))
-        report = bench.bench_scale(work, config, memory=a.memory, methods=a.methods or bench.SCALE_METHODS,
-                                   gt_points=a.gt_points or bench.GT_POINTS,
+        report = bench.bench_scale(work, config, memory=a.memory, kind=a.kind,
+                                   methods=a.methods or bench.SCALE_METHODS, gt_points=a.gt_points or bench.GT_POINTS,
                                    protocols=a.protocols or bench.MEMORY_PROTOCOLS)
     print(json.dumps(report, indent=2) if a.json else bench.format_scale_report(report))
 
@@ -590,6 +590,7 @@ def _add_mesh_parsers(sub) -> None:
 
 def _add_bench_parser(sub) -> None:
     from eve3d.settings import RENDER_BACKENDS
+    from eve3d.synth import KINDS
 
     s = sub.add_parser("bench", help="speed and memory benchmarks (print a table)")
     what = s.add_subparsers(dest="benchmark", required=True)
@@ -641,7 +642,8 @@ def _add_bench_parser(sub) -> None:
     sc.add_argument("--memory", action="store_true",
                     help="no training: fuse the exact depth of VIEWS views at WIDTHxHEIGHT (default 300 at 1920x1080) "
                          "and score fused meshes against --gt-points ground-truth points (synthetic, tnt, dtu)")
-    sc.add_argument("--views", type=int, help="views of the generated room (default 300)")
+    sc.add_argument("--kind", choices=list(KINDS), default="room", help="the generated scene (default room)")
+    sc.add_argument("--views", type=int, help="views of the generated scene (default 300)")
     sc.add_argument("--width", type=int, help="its image width (default 960; --memory: the depth maps', 1920)")
     sc.add_argument("--height", type=int, help="its image height (default 540; --memory: 1080)")
     sc.add_argument("--iterations", type=int, help="pretrain and joint iterations (the preset's 1500 at cpu); the "
