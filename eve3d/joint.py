@@ -94,8 +94,12 @@ class PriorState:
         self.confidence = [state.add_buffer(f"prior_confidence/{i}", c.clone())
                            for i, c in enumerate(priors.confidence)]
         self.learnable = s.priors == "learnable"
-        self.log_depth = [state.add_extra(f"prior_log_depth/{i}", filled_log_depth(d), s.prior_lr)
-                          for i, d in enumerate(priors.depth)] if self.learnable else []
+        if self.learnable:  # a view without prior depth starts at the median of the others'
+            typical = float(torch.cat([d[d > 0] for d in priors.depth]).median())
+            self.log_depth = [state.add_extra(f"prior_log_depth/{i}", filled_log_depth(d, typical), s.prior_lr)
+                              for i, d in enumerate(priors.depth)]
+        else:
+            self.log_depth = []
 
     def depth(self, i: int) -> torch.Tensor:
         """D̂_i (learnable) or D*_i (fixed)."""

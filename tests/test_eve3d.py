@@ -263,7 +263,6 @@ def test_exported_priors_at_dataset_resolution_with_previews(tiny_scene, tmp_pat
 @pytest.mark.parametrize("damage, message", [
     ("missing", "003.npz: missing prior for view 003"),
     ("size", r"003.npz: maps are 64×24, view 003 is 64×48 \(or a scale of it\)"),
-    ("invalid", "003.npz: no confident prior depth"),
 ])
 def test_bad_prior_map_is_named_before_training(tiny_scene, tmp_path, noisy_priors, damage, message):
     import shutil
@@ -276,10 +275,42 @@ def test_bad_prior_map_is_named_before_training(tiny_scene, tmp_path, noisy_prio
     else:
         m = load_maps(path)
         # half the rows: not the view at any scale (a map at half the size is resampled)
-        m = {k: v[::2] for k, v in m.items()} if damage == "size" else {**m, "depth": m["depth"] * 0}
+        m = {k: v[::2] for k, v in m.items()}
         save_maps(path, preview=False, **m)
     with pytest.raises(Eve3dError, match=message):
         setup_joint(tiny_scene, tmp_path / "run", _eve3d(), bad)
+
+
+def test_a_view_without_prior_depth_trains_without_prior_terms(tiny_scene, tmp_path, noisy_priors, capsys):
+    """A view whose stereo matched nothing (a blank ceiling in a 300-view room) is named in
+    a warning and trains: no L_prior, its D̂ starts at the median prior depth of the other
+    views and L_pull moves it towards the rendered depth. Priors blank in every view stop
+    with the folder named."""
+    import shutil
+
+    bad = tmp_path / "priors"
+    shutil.copytree(noisy_priors, bad)
+    for cam in tiny_scene.cameras[:3]:
+        m = load_maps(bad / f"{cam.view_id}.npz")
+        save_maps(bad / f"{cam.view_id}.npz", preview=False, **{**m, "depth": m["depth"] * 0})
+    run = setup_joint(tiny_scene, tmp_path / "run", _eve3d(iterations=12, prior_from=0, joint_from=4), bad)
+    blank = [cam.view_id for cam in tiny_scene.cameras[:3]]
+    warning = capsys.readouterr().err
+    assert f"3 of {len(tiny_scene.cameras)} views have no confident prior depth" in warning, warning
+    assert warning.rstrip().endswith(", ".join(blank)), warning
+    others = torch.cat([d[d > 0] for d in run.priors.star.depth])
+    start = _log_depths(run.trainer)
+    assert torch.allclose(start["prior_log_depth/0"], torch.log(others.median()).expand_as(start["prior_log_depth/0"]))
+    terms = []
+    run.trainer.run(lambda step, view, out: terms.append((view.index, set(t := run.loss(step, view, out)))) or t)
+    blank_terms = set().union(*(t for i, t in terms if i < 3))
+    assert "prior" not in blank_terms and terms and all(
+        torch.isfinite(v).all() for v in _log_depths(run.trainer).values())
+    for cam in tiny_scene.cameras[3:]:
+        m = load_maps(bad / f"{cam.view_id}.npz")
+        save_maps(bad / f"{cam.view_id}.npz", preview=False, **{**m, "depth": m["depth"] * 0})
+    with pytest.raises(Eve3dError, match=f"{bad}: no confident prior depth in any view"):
+        setup_joint(tiny_scene, tmp_path / "none", _eve3d(), bad)
 
 
 def test_prior_method_without_priors_stops_with_what_is_missing(tiny_dataset, tmp_path):

@@ -55,8 +55,10 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
                 normal_span: int = 1) -> Priors:
     """The priors of every camera (``{folder}/{view}.npz``, at any scale of its size) resampled
     to its training camera's size, with normals from the resampled depth (finite
-    differences over ±``normal_span`` pixels). A missing, mis-sized or all-invalid map is an
-    error naming the file."""
+    differences over ±``normal_span`` pixels). A missing or mis-sized map is an error naming
+    the file; so are priors without a confident pixel in any view. A view without one (a
+    blank wall or ceiling: the stereo matches nothing) is named in a warning and trains
+    without prior terms."""
     from eve3d.losses import depth_to_normal
     from eve3d.render.projection import CameraTensors
 
@@ -65,7 +67,7 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
         raise Eve3dError(f"{folder}: no priors folder (run the stereo stage: `eve3d stereo-render`, then "
                          f"`eve3d stereo-depth`)")
     digest = hashlib.sha256()
-    depths, confs, normals = [], [], []
+    depths, confs, normals, blank = [], [], [], []
     for full, cam in zip(cameras, training):
         path = folder / f"{cam.view_id}.npz"
         if not path.is_file():
@@ -81,21 +83,32 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0)
         depth, conf = resample_prior(depth, conf, cam.width, cam.height)
         if not ((depth > 0) & (conf > 0.5)).any():
-            raise Eve3dError(f"{path}: no confident prior depth at all (every pixel invalid or unconfident)")
+            blank.append(cam.view_id)
         d = torch.from_numpy(depth)
         depths.append(d)
-        confs.append(torch.from_numpy(conf > 0.5))
+        confs.append(torch.from_numpy((conf > 0.5) & (depth > 0)))  # a confidence without a depth is none
         normals.append(depth_to_normal(d, CameraTensors.from_camera(cam), normal_span))
+    if len(blank) == len(training):
+        raise Eve3dError(f"{folder}: no confident prior depth in any view (every pixel invalid or unconfident)")
+    if blank:
+        from eve3d.photos import warn
+
+        warn(f"{folder}: {len(blank)} of {len(training)} views have no confident prior depth (nothing the "
+             f"stereo could match: a blank wall, no overlap) and train without prior terms: "
+             f"{', '.join(blank[:10])}{', …' if len(blank) > 10 else ''}")
     on = lambda maps: [m.to(device) for m in maps]  # noqa: E731
     return Priors(on(depths), on(confs), on(normals), digest.hexdigest()[:16])
 
 
-def filled_log_depth(depth: torch.Tensor) -> torch.Tensor:
-    """log D* with every invalid pixel given its nearest valid pixel's depth: the start of
-    D̂ (L_pull moves the unconfident pixels toward the rendered depth)."""
+def filled_log_depth(depth: torch.Tensor, blank: float) -> torch.Tensor:
+    """log D* with every invalid pixel given its nearest valid pixel's depth, or ``blank``
+    everywhere in a view without a valid pixel: the start of D̂ (L_pull moves the
+    unconfident pixels toward the rendered depth)."""
     from scipy.ndimage import distance_transform_edt
 
     d = depth.cpu().numpy()
+    if not (d > 0).any():
+        return torch.full_like(depth, float(np.log(blank)))
     _, (rows, cols) = distance_transform_edt(d <= 0, return_indices=True)
     return torch.from_numpy(np.log(d[rows, cols])).to(depth.device)
 
