@@ -25,7 +25,7 @@ class DiskFull(Eve3dError):
     artefact, not the temporary file, and says the earlier one is kept."""
 
     def __init__(self, path: Path, reason: str):
-        kept = f"the earlier {path.name} is kept as it was" if path.exists() else f"no {path.name} was written"
+        kept = "the earlier one is kept as it was" if path.exists() else "nothing was written"
         super().__init__(f"{path}: cannot write it, the disk is full ({reason}); {kept}")
         self.reason = reason
 
