@@ -98,6 +98,7 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
         attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=BLOCK_RESOLUTION,
         block_count=blocks, device=o3c.Device("CPU:0"))
+    fused = 0
     for cam, depth in tqdm(fused_depths(scene, depth_dir, s), total=len(scene.cameras),
                            desc=f"TSDF (voxel {voxel:.4g})", unit="view"):
         if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
@@ -110,16 +111,28 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         else:
             rgb = np.full((cam.height, cam.width, 3), 0.7, np.float32)
         color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
-        coords = vbg.compute_unique_block_coordinates(depth_img, intrinsic, extrinsic, 1.0, depth_max,
-                                                      trunc_voxel_multiplier=s.trunc_factor)
+        try:
+            coords = vbg.compute_unique_block_coordinates(depth_img, intrinsic, extrinsic, 1.0, depth_max,
+                                                          trunc_voxel_multiplier=s.trunc_factor)
+        except RuntimeError as e:  # open3d aborts on a view none of whose sampled depths touch a block
+            if "No block is touched" not in str(e):
+                raise
+            continue  # (sparse or out-of-range depth): it adds nothing, as an empty view
         vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
                       trunc_voxel_multiplier=s.trunc_factor)
-    mesh = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold).to_legacy()
+        fused += 1
+    mesh = o3d.geometry.TriangleMesh()  # open3d cannot extract from a grid that no view reached
+    if fused:
+        mesh = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold).to_legacy()
     region = scene.region(s.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths
         mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(*region))
     if len(mesh.triangles) == 0:
-        raise Eve3dError(f"{depth_dir}: TSDF fusion produced an empty mesh")
+        why = (f"too few of the {fused} views fused agree on a depth for mesh.weight_threshold "
+               f"{s.weight_threshold:g}, or it lies outside the region of interest (mesh.region)" if fused else
+               "no view's depth reaches the grid (beyond mesh.depth_max, not finite, or too sparse)")
+        raise Eve3dError(f"{depth_dir}: the depth maps fuse to no surface (an empty mesh at voxel {voxel:.4g}): {why}; "
+                         f"no mesh written")
     keep_largest = s.largest_cluster if s.largest_cluster is not None else scene.kind == "object"
     if keep_largest:
         mesh = keep_large_clusters(mesh, s.min_cluster_fraction)

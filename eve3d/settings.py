@@ -356,10 +356,20 @@ class RenderSettings(Checked):
             return min(self.resolution, self.max_side / max(cam.width, cam.height))
         return self.resolution
 
+    MIN_SIDE: ClassVar[int] = 8
+    """Smallest training image side in pixels (below it the rasteriser, SSIM and NCC have
+    nothing to work on; at 0 px OpenCV's resize asserts)."""
+
     def sized(self, cam: Camera) -> Camera:
-        """``cam`` at the training size (:meth:`scale`)."""
+        """``cam`` at the training size (:meth:`scale`); an error naming ``resolution`` and
+        ``max_side`` when that size is below :attr:`MIN_SIDE`."""
         factor = self.scale(cam)
-        return cam if factor == 1 else cam.scaled(factor)
+        small = cam if factor == 1 else cam.scaled(factor)
+        if min(small.width, small.height) < self.MIN_SIDE:
+            raise Eve3dError(f"{self.SECTION}.resolution {self.resolution:g} (max_side {self.max_side}): view "
+                             f"{cam.name} ({cam.width}×{cam.height}) would be trained at {small.width}×{small.height} "
+                             f"px; the training size needs at least {self.MIN_SIDE} px a side")
+        return small
 
 
 @dataclass
