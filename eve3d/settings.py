@@ -35,9 +35,11 @@ warn and go on, or the check is skipped."""
 TNT_POINTS = ("vertices", "sampled")
 """What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
 official toolbox reads a mesh PLY, or the vertices plus area samples."""
-PRIOR_BACKENDS = ("sgbm", "onnx", "oracle")
+PRIOR_BACKEND_DEVICES = {"sgbm": "cpu", "onnx": "gpu", "oracle": "cpu"}
 """Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs, a
-stereo network exported to ONNX, or the exact depth of a scene with a known mesh."""
+stereo network exported to ONNX, or the exact depth of a scene with a known mesh; each with
+the device its job asks a cluster for (a network runs on the CUDA provider)."""
+PRIOR_BACKENDS = tuple(PRIOR_BACKEND_DEVICES)
 
 
 def setting(default: Any = None, *, factory: Any = None, ge: float | None = None, gt: float | None = None,

@@ -2,6 +2,7 @@
 import csv
 import json
 import math
+import re
 import shutil
 
 import numpy as np
@@ -310,3 +311,104 @@ def test_dry_run_of_dtu_and_nvs_scenes(tmp_path, object_scene, object_dataset):
     assert f"evaluate --check --scene {scan} --out {tmp_path}/results/scan1/ground_truth_check.json --protocol dtu" in out
     assert f"--protocol nvs --model {tmp_path}/results/views/pgsr/point_cloud.ply" in out
     assert '\\"holdout\\": 8' in out or '"holdout": 8' in out
+
+
+def test_a_failed_scene_stays_local_with_keep_going(tmp_path):
+    """A scene whose SfM fails (photos of noise) beside one that works: with --keep-going the
+    other finishes, and the summary and the report list the failed one with its first error
+    line and its log."""
+    import cv2
+
+    photos = tmp_path / "noise" / "images"
+    photos.mkdir(parents=True)
+    for i in range(4):
+        cv2.imwrite(str(photos / f"{i:03d}.png"), np.random.default_rng(i).integers(0, 255, (48, 64, 3), np.uint8))
+    cfg = write_config(tmp_path, scenes={"tiny": {"synthetic": {"kind": "object", "views": 8, "width": 96, "height": 72}},
+                                         "noise": {"path": str(tmp_path / "noise"), "methods": ["pgsr"]}})
+    r = snakemake("-c1", "--keep-going", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode != 0
+    results = Layout(tmp_path / "results")
+    rows = {(row["scene"], row["method"]): row for row in csv.DictReader(open(results.summary()))}
+    assert set(rows) == {("tiny", "oracle"), ("noise", "pgsr")}
+    assert float(rows["tiny", "oracle"]["fscore"]) > 0.8 and not rows["tiny", "oracle"]["failed"]
+    failed = rows["noise", "pgsr"]
+    assert failed["failed"] == (f"sfm: eve3d sfm: error: {photos}: SfM could not register any image pair "
+                                "(too little texture or overlap?)")
+    assert failed["log"] == str(results.log("noise", "sfm")) and failed["fscore"] == ""
+    assert f"failed: noise pgsr: sfm: eve3d sfm: error: {photos}" in r.stderr
+    page = (results.report_pages() / "summary.html").read_text()
+    assert "noise" in page and "SfM could not register any image pair" in page
+    # Once the scene is fixed (here: left out), a run lists no failure.
+    cfg = write_config(tmp_path, scenes={"tiny": {"synthetic": {"kind": "object", "views": 8, "width": 96, "height": 72}}})
+    r = snakemake("-c1", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert [row["scene"] for row in csv.DictReader(open(results.summary()))] == ["tiny"]
+    assert not results.failures().exists()
+
+
+def test_failed_rows_name_the_job_each_row_waited_for(tmp_path):
+    """From Snakemake's log of failed jobs: a method's own training failure names that row
+    only; a prior backend's failure names the rows left without metrics; a row with metrics
+    is not listed."""
+    from eve3d.failures import failed_jobs, failed_rows
+
+    layout = Layout(tmp_path / "results")
+    layout.metrics("tiny", "oracle").parent.mkdir(parents=True)
+    layout.metrics("tiny", "oracle").write_text("{}")
+    joint, priors = layout.log("tiny", "joint", "pgsr"), layout.log("tiny", "stereo_depth", "sgbm")
+    joint.parent.mkdir(parents=True)
+    joint.write_text("pgsr:  12%|#| 12/100\nTraceback (most recent call last):\n  File \"x.py\"\n"
+                     "RuntimeError: the loss is NaN at iteration 12\n")
+    priors.write_text("eve3d stereo-depth: error: /data/images/003.png: corrupt or unreadable image\n")
+    log = tmp_path / "snakemake.log"
+    log.write_text(f"Error in rule joint:\n    jobid: 4\n    log: {joint} (check log file(s) for error details)\n"
+                   f"    shell:\n        ...\nSomething else\nError in rule stereo_depth:\n    jobid: 2\n"
+                   f"    log: {priors} (check log file(s) for error details)\n")
+    rows = failed_rows(layout, [("tiny", m) for m in ("oracle", "pgsr", "stereo-tsdf")], failed_jobs([log]))
+    assert rows == [
+        {"scene": "tiny", "method": "pgsr", "failed": "joint: RuntimeError: the loss is NaN at iteration 12",
+         "log": str(joint)},
+        {"scene": "tiny", "method": "stereo-tsdf",
+         "failed": "stereo_depth: eve3d stereo-depth: error: /data/images/003.png: corrupt or unreadable image",
+         "log": str(priors)}]
+
+
+def test_progress_shows_job_starts_ends_and_the_training_bar(tmp_path):
+    """The logger plugin's handler: a line per job start and end with its stage, scene,
+    method and wall time; the running job's latest bar from its log (no drawing), printed
+    once while it does not change; errors as Snakemake formats them."""
+    import io
+    import logging
+    import time
+
+    from snakemake_interface_logger_plugins.common import LogEvent
+
+    from eve3d.progress import ProgressHandler, latest_progress
+
+    log = tmp_path / "joint_eve3d.log"
+    log.write_text("eve3d: loading images\neve3d:  10%|#         | 10/100 [00:01<00:09, 9.9it/s, loss=0.2, psnr=12.00]"
+                   "\reve3d:  20%|##        | 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]")
+    assert latest_progress(log) == "eve3d: 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]"
+    assert latest_progress(tmp_path / "missing.log") is None
+
+    def record(event, level=logging.INFO, msg="", **fields):
+        r = logging.LogRecord("snakemake", level, "", 0, msg, None, None)
+        r.event = event
+        r.__dict__.update(fields)
+        return r
+
+    out = io.StringIO()
+    handler = ProgressHandler(out, interval=0.2)
+    handler.emit(record(LogEvent.PROGRESS, done=3, total=9))
+    handler.emit(record(LogEvent.JOB_INFO, jobid=7, rule_name="joint", wildcards={"scene": "tiny", "method": "eve3d"},
+                        log=[str(log)]))
+    time.sleep(1.5)  # the poller reads the log; the line does not change, so it is printed once
+    handler.emit(record(LogEvent.JOB_FINISHED, job_id=7))
+    handler.emit(record(None, logging.INFO, "Select jobs to execute..."))  # chatter: not shown
+    handler.emit(record(LogEvent.ERROR, logging.ERROR, "WorkflowError: at least one job failed"))
+    handler.close()
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "[3/9] start   joint tiny eve3d"
+    assert lines[1] == "        joint tiny eve3d: eve3d: 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]"
+    assert re.fullmatch(r"\[4/9\] done    joint tiny eve3d  [12] s", lines[2]), lines
+    assert lines[3:] == ["WorkflowError: at least one job failed"]
