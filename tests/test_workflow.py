@@ -6,6 +6,7 @@ import re
 import shutil
 
 import numpy as np
+import yaml
 import pytest
 from PIL import Image
 
@@ -205,13 +206,39 @@ def test_tiny_training_run(tmp_path):
     assert math.isfinite(nvs["psnr"]) and float(summary["tiny-nvs", "3dgs"]["psnr"]) == pytest.approx(nvs["psnr"])
 
 
-def test_tiny_run_then_rerun_one_stage(tmp_path):
-    cfg = write_config(tmp_path)
+def test_tiny_run_with_a_failed_scene_then_rerun_one_stage(tmp_path):
+    """The oracle on the tiny scene beside a scene whose SfM fails (photos of noise): with
+    --keep-going the tiny scene finishes, and the summary and the report list the failed one
+    with its first error line and log. Rerun without it, no failure is listed; --forcerun
+    then reruns one stage and what depends on it, nothing upstream."""
+    import cv2
+
+    photos = tmp_path / "noise" / "images"
+    photos.mkdir(parents=True)
+    for i in range(4):
+        cv2.imwrite(str(photos / f"{i:03d}.png"), np.random.default_rng(i).integers(0, 255, (48, 64, 3), np.uint8))
+    scenes = yaml.safe_load(write_config(tmp_path).read_text())["scenes"]
+    cfg = write_config(tmp_path, scenes={**scenes, "noise": {"path": str(tmp_path / "noise"), "methods": ["pgsr"]}})
+    r = snakemake("-c2", "--keep-going", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode != 0
     results = tmp_path / "results"
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
+    layout = Layout(results)
+    rows = {(row["scene"], row["method"]): row for row in csv.DictReader(open(layout.summary()))}
+    assert set(rows) == {("tiny", "oracle"), ("noise", "pgsr")}
+    failed = rows["noise", "pgsr"]
+    assert failed["failed"] == (f"sfm: eve3d sfm: error: {photos}: SfM could not register any image pair "
+                                "(too little texture or overlap?)")
+    assert failed["log"] == str(layout.log("noise", "sfm")) and failed["fscore"] == ""
+    assert f"failed: noise pgsr: sfm: eve3d sfm: error: {photos}" in r.stderr
+    page = (layout.report_pages() / "summary.html").read_text()
+    assert "noise" in page and "SfM could not register any image pair" in page
+
+    tiny = write_config(tmp_path)  # the failed scene left out
+    r = snakemake("-c2", "--configfile", str(tiny), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
-    rows = list(csv.DictReader(open(Layout(results).summary())))
-    assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "oracle")]
+    assert not layout.failures().exists()
+    rows = list(csv.DictReader(open(layout.summary())))
+    assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "oracle")] and not rows[0]["failed"]
     assert float(rows[0]["fscore"]) > 0.5
     assert float(rows[0]["depth_signed_error"]) == 0 and float(rows[0]["depth_error"]) == 0  # fused the exact depth
     assert_synth_input(results / "tiny/input", 12, 160, 120)
@@ -221,8 +248,7 @@ def test_tiny_run_then_rerun_one_stage(tmp_path):
     assert float(rows[0]["fscore"]) == pytest.approx(m["fscore"])
     mesh_time = (results / "tiny/oracle/mesh.ply").stat().st_mtime_ns
     prior_time = (results / "tiny/priors/oracle/000.npz").stat().st_mtime_ns
-    # --forcerun reruns one stage and what depends on it, nothing upstream.
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config", "--forcerun", "mesh")
+    r = snakemake("-c2", "--configfile", str(tiny), "--replace-workflow-config", "--forcerun", "mesh")
     assert r.returncode == 0, r.stderr[-3000:]
     assert (results / "tiny/oracle/mesh.ply").stat().st_mtime_ns > mesh_time
     assert (results / "tiny/priors/oracle/000.npz").stat().st_mtime_ns == prior_time
@@ -311,39 +337,6 @@ def test_dry_run_of_dtu_and_nvs_scenes(tmp_path, object_scene, object_dataset):
     assert f"evaluate --check --scene {scan} --out {tmp_path}/results/scan1/ground_truth_check.json --protocol dtu" in out
     assert f"--protocol nvs --model {tmp_path}/results/views/pgsr/point_cloud.ply" in out
     assert '\\"holdout\\": 8' in out or '"holdout": 8' in out
-
-
-def test_a_failed_scene_stays_local_with_keep_going(tmp_path):
-    """A scene whose SfM fails (photos of noise) beside one that works: with --keep-going the
-    other finishes, and the summary and the report list the failed one with its first error
-    line and its log."""
-    import cv2
-
-    photos = tmp_path / "noise" / "images"
-    photos.mkdir(parents=True)
-    for i in range(4):
-        cv2.imwrite(str(photos / f"{i:03d}.png"), np.random.default_rng(i).integers(0, 255, (48, 64, 3), np.uint8))
-    cfg = write_config(tmp_path, scenes={"tiny": {"synthetic": {"kind": "object", "views": 8, "width": 96, "height": 72}},
-                                         "noise": {"path": str(tmp_path / "noise"), "methods": ["pgsr"]}})
-    r = snakemake("-c1", "--keep-going", "--configfile", str(cfg), "--replace-workflow-config")
-    assert r.returncode != 0
-    results = Layout(tmp_path / "results")
-    rows = {(row["scene"], row["method"]): row for row in csv.DictReader(open(results.summary()))}
-    assert set(rows) == {("tiny", "oracle"), ("noise", "pgsr")}
-    assert float(rows["tiny", "oracle"]["fscore"]) > 0.8 and not rows["tiny", "oracle"]["failed"]
-    failed = rows["noise", "pgsr"]
-    assert failed["failed"] == (f"sfm: eve3d sfm: error: {photos}: SfM could not register any image pair "
-                                "(too little texture or overlap?)")
-    assert failed["log"] == str(results.log("noise", "sfm")) and failed["fscore"] == ""
-    assert f"failed: noise pgsr: sfm: eve3d sfm: error: {photos}" in r.stderr
-    page = (results.report_pages() / "summary.html").read_text()
-    assert "noise" in page and "SfM could not register any image pair" in page
-    # Once the scene is fixed (here: left out), a run lists no failure.
-    cfg = write_config(tmp_path, scenes={"tiny": {"synthetic": {"kind": "object", "views": 8, "width": 96, "height": 72}}})
-    r = snakemake("-c1", "--configfile", str(cfg), "--replace-workflow-config")
-    assert r.returncode == 0, r.stderr[-3000:]
-    assert [row["scene"] for row in csv.DictReader(open(results.summary()))] == ["tiny"]
-    assert not results.failures().exists()
 
 
 def test_failed_rows_name_the_job_each_row_waited_for(tmp_path):
