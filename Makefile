@@ -10,7 +10,7 @@ JOBS ?= 2
 REPORT := results/report.html
 
 demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print the table, write the report
-	$(BIN)/snakemake -c$(JOBS) --quiet rules progress --omit-from summary
+	$(BIN)/snakemake -c$(JOBS) --logger eve3d --omit-from summary
 	@# the workflow's summary rule prints the table of the results folder the config names;
 	@# rerun it alone (everything else is done) so that the table comes last
 	@$(BIN)/snakemake -c1 --quiet all --forcerun summary
@@ -23,22 +23,29 @@ test: $(STAMP)  ## the test suite
 install: $(STAMP)
 
 # open3d needs libusb-1.0 from the system, the report's browser test Debian's headless
-# Chromium; torch is pinned and installed first, because a loose torch requirement on a
-# machine without it pulls a multi-GB CUDA build.
-$(STAMP): pyproject.toml
+# Chromium, the Slurm test Debian's slurm-wlm and munge (a one-node cluster); torch is pinned
+# and installed first, because a loose torch requirement on a machine without it pulls a
+# multi-GB CUDA build. The logger plugin (workflow/logger) is installed as a package: Snakemake
+# does not find plugins installed editable.
+$(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemake_logger_plugin_eve3d/__init__.py
 	@SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	{ ldconfig -p | grep -q libusb-1.0 && [ -x /usr/lib/chromium/chromium-headless-shell ]; } || \
-	  $$SUDO apt-get update -qq; \
+	{ ldconfig -p | grep -q libusb-1.0 && [ -x /usr/lib/chromium/chromium-headless-shell ] && \
+	  command -v slurmd >/dev/null && command -v munged >/dev/null; } || $$SUDO apt-get update -qq; \
 	ldconfig -p | grep -q libusb-1.0 || $$SUDO apt-get install -y -qq libusb-1.0-0; \
 	[ -x /usr/lib/chromium/chromium-headless-shell ] || \
 	  $$SUDO apt-get install -y -qq --no-install-recommends chromium-headless-shell || \
-	  echo "warning: no chromium-headless-shell (Debian): the report's browser test will fail" >&2
+	  echo "warning: no chromium-headless-shell (Debian): the report's browser test will fail" >&2; \
+	{ command -v slurmd >/dev/null && command -v munged >/dev/null; } || \
+	  $$SUDO apt-get install -y -qq --no-install-recommends slurm-wlm munge || \
+	  echo "warning: no slurm-wlm and munge (Debian): the Slurm test will fail" >&2
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q torch==2.13.0
 	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
 	$(BIN)/pip uninstall -q -y opencv-python-headless opencv-python 2>/dev/null || true
 	$(BIN)/pip install -q -e '.[test]'
+	$(BIN)/pip install -q ./workflow/logger
+	@rm -rf workflow/logger/build workflow/logger/*.egg-info
 	@touch $@
 
 clean:

@@ -374,6 +374,11 @@ def _cmd_summary(a: argparse.Namespace) -> None:
         m.setdefault("scene", scene)
         m.setdefault("method", stage)
         rows.append(m)
+    if a.failed:  # rows of a workflow that ended with failed jobs (eve3d.failures)
+        try:
+            rows += json.loads(Path(a.failed).read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise Eve3dError(f"{a.failed}: cannot read the failed rows ({e})") from None
     rows.sort(key=lambda r: (r["scene"], r["method"]))
     out = Path(a.out)
     _write_csv(out, SUMMARY_COLUMNS, rows)
@@ -488,8 +493,9 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (_add_data_parsers, _add_stereo_parsers, _add_training_parsers, _add_mesh_parsers):
         add(sub)
     s = sub.add_parser("summary", help="gather metrics.json files into a CSV and print the table")
-    s.add_argument("metrics", nargs="+")
+    s.add_argument("metrics", nargs="*")
     s.add_argument("--out", required=True)
+    s.add_argument("--failed", help="JSON rows of scenes and methods whose jobs failed (written by the workflow)")
     s.set_defaults(func=_cmd_summary)
     s = sub.add_parser("report", help="the report's pages from a results folder (snakemake --report gathers them)")
     s.add_argument("--results", required=True, help="the results folder (its summary.csv and benchmark files)")

@@ -216,7 +216,14 @@ def stage_settings(cls: type, section: str, config: Mapping, overrides: dict | N
 
     training = section in TRAINING_SECTIONS[1:]
     shared = config.get("train") or {} if training else {}
-    values = deep_merge(deep_merge(shared, config.get(section) or {}), overrides or {})
+    own = config.get(section) or {}
+    # A layer that a higher one may shadow is checked alone too: a value it overrides
+    # (train.iterations under the preset's pretrain.iterations, joint's under a variant's) is never
+    # read, and a bad one passed without a word.
+    for layer, name in ((shared, "train"), (own if overrides else {}, section)):
+        if layer:
+            from_mapping(cls, layer, where=name)
+    values = deep_merge(deep_merge(shared, own), overrides or {})
     values.update(fixed)
     where = f"{section} (train + {section} sections)" if training else section
     return from_mapping(cls, values, where=where)

@@ -5,6 +5,7 @@ file or folder that looks complete.
 """
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -19,6 +20,19 @@ from eve3d.scene import Eve3dError
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
+class DiskFull(Eve3dError):
+    """No space left (or over quota) while an artefact was written; the message names the
+    artefact, not the temporary file, and says the earlier one is kept."""
+
+    def __init__(self, path: Path, reason: str):
+        kept = "the earlier one is kept as it was" if path.exists() else "nothing was written"
+        super().__init__(f"{path}: cannot write it, the disk is full ({reason}); {kept}")
+        self.reason = reason
+
+
+_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success."""
@@ -30,6 +44,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
+    except OSError as e:
+        if e.errno not in _FULL:
+            raise
+        raise DiskFull(path, e.strerror or "no space left on the device") from None
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -45,6 +63,12 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
         if path.exists():
             shutil.rmtree(path)
         os.replace(tmp, path)
+    except DiskFull as e:  # a file inside: name the folder, the artefact the user knows
+        raise DiskFull(path, e.reason) from None
+    except OSError as e:
+        if e.errno not in _FULL:
+            raise
+        raise DiskFull(path, e.strerror or "no space left on the device") from None
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)

@@ -155,6 +155,10 @@ class Layout:
     def summary(self) -> Path:
         return self.root / SUMMARY_FILE
 
+    def failures(self) -> Path:
+        """The rows of the scenes and methods whose jobs failed (``eve3d.failures``)."""
+        return self.root / "failed.json"
+
     def report_pages(self) -> Path:
         """The pages ``eve3d report`` writes for Snakemake's ``--report`` (``eve3d.report``)."""
         return self.root / REPORT_DIR

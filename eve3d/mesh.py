@@ -124,27 +124,44 @@ def _frame(cam: Camera, depth: np.ndarray):
             o3d.t.geometry.Image(o3c.Tensor(depth)))
 
 
+def _block_coords(grid, frame: tuple, s: MeshSettings, depth_max: float):
+    """The blocks a view's depth (``frame``: :func:`_frame`) touches in ``grid``, or None
+    when it touches none: open3d raises then (sparse or out-of-range depth), and the view
+    adds nothing, as an empty one."""
+    intrinsic, extrinsic, depth_img = frame
+    try:
+        return grid.compute_unique_block_coordinates(depth_img, intrinsic, extrinsic, 1.0, depth_max,
+                                                     trunc_voxel_multiplier=s.trunc_factor)
+    except RuntimeError as e:
+        if "No block is touched" not in str(e):
+            raise
+        return None
+
+
 def block_count(scene: Scene, depth_dir: Path, s: MeshSettings, voxel: float) -> int:
     """The blocks the fusion allocates, exactly: the union of the blocks each view touches
     (open3d's own test, ``compute_unique_block_coordinates``, gathered in a hash set),
-    plus the most that one view touches. open3d grows the grid's hash map (a copy of
-    every block) whenever its size plus a view's blocks would pass its capacity; with this
-    capacity it never does, and nothing is allocated that no view reaches."""
+    plus the most that one view touches (0 when no view touches one). open3d grows the
+    grid's hash map (a copy of every block) whenever its size plus a view's blocks would
+    pass its capacity; with this capacity it never does, and nothing is allocated that no
+    view reaches."""
     import open3d.core as o3c
 
     probe, depth_max = _grid(voxel, 1), float(s.depth_max) if s.depth_max else 1e6
     touched = o3c.HashSet(1024, o3c.int32, (3,), o3c.Device("CPU:0"))
-    most = 0
+    most, valid = 0, False
     for cam, depth in fused_depths(scene, depth_dir, s, "TSDF blocks", leave=False):
         if not (depth > 0).any():
             continue
-        intrinsic, extrinsic, depth_img = _frame(cam, depth)
-        coords = probe.compute_unique_block_coordinates(depth_img, intrinsic, extrinsic, 1.0, depth_max,
-                                                        trunc_voxel_multiplier=s.trunc_factor)
-        touched.insert(coords)
-        most = max(most, len(coords))
-    if not touched.size():
+        valid = True
+        coords = _block_coords(probe, _frame(cam, depth), s, depth_max)
+        if coords is not None:
+            touched.insert(coords)
+            most = max(most, len(coords))
+    if not valid:
         raise _nothing_to_fuse(depth_dir)
+    if not touched.size():
+        return 0
     if touched.size() > MAX_BLOCKS:  # refused before the fusion, not a crash after it
         raise Eve3dError(f"{depth_dir}: at voxel {voxel:.4g} the views touch {touched.size():,} blocks of "
                          f"{BLOCK_RESOLUTION}³ voxels; open3d extracts a mesh from at most {MAX_BLOCKS:,}. Use a voxel "
@@ -172,29 +189,40 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
     s = settings or MeshSettings()
     voxel, blocks = plan_grid(scene, depth_dir, s)
     depth_max = float(s.depth_max) if s.depth_max else 1e6
-    vbg = _grid(voxel, blocks)
-    for cam, depth in fused_depths(scene, depth_dir, s, f"TSDF (voxel {voxel:.4g}, {blocks} blocks)"):
+    vbg = _grid(voxel, max(blocks, 1))
+    fused = 0
+    views = fused_depths(scene, depth_dir, s, f"TSDF (voxel {voxel:.4g}, {blocks} blocks)") if blocks else ()
+    for cam, depth in views:
         if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
             continue
-        intrinsic, extrinsic, depth_img = _frame(cam, depth)
+        frame = _frame(cam, depth)
+        coords = _block_coords(vbg, frame, s, depth_max)
+        if coords is None:
+            continue
+        intrinsic, extrinsic, depth_img = frame
         if cam.image_path is not None and cam.image_path.exists():
             rgb = read_view(cam).astype(np.float32) / 255.0
         else:
             rgb = np.full((cam.height, cam.width, 3), 0.7, np.float32)
         color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
-        coords = vbg.compute_unique_block_coordinates(depth_img, intrinsic, extrinsic, 1.0, depth_max,
-                                                      trunc_voxel_multiplier=s.trunc_factor)
         vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
                       trunc_voxel_multiplier=s.trunc_factor)
-    extracted = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold)
-    del vbg  # the grid goes before the mesh is converted (each a few GB at the DESIGN voxel on a large scene)
-    mesh = extracted.to_legacy()
-    del extracted
+        fused += 1
+    mesh = o3d.geometry.TriangleMesh()  # open3d cannot extract from a grid that no view reached
+    if fused:
+        extracted = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold)
+        del vbg  # the grid goes before the mesh is converted (each a few GB at the DESIGN voxel on a large scene)
+        mesh = extracted.to_legacy()
+        del extracted
     region = scene.region(s.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths
         mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(*region))
     if len(mesh.triangles) == 0:
-        raise Eve3dError(f"{depth_dir}: TSDF fusion produced an empty mesh")
+        why = (f"too few of the {fused} views fused agree on a depth for mesh.weight_threshold "
+               f"{s.weight_threshold:g}, or it lies outside the region of interest (mesh.region)" if fused else
+               "no view's depth reaches the grid (beyond mesh.depth_max, not finite, or too sparse)")
+        raise Eve3dError(f"{depth_dir}: the depth maps fuse to no surface (an empty mesh at voxel {voxel:.4g}): {why}; "
+                         f"no mesh written")
     keep_largest = s.largest_cluster if s.largest_cluster is not None else scene.kind == "object"
     if keep_largest:
         mesh = keep_large_clusters(mesh, s.min_cluster_fraction)

@@ -24,6 +24,11 @@ from eve3d.config import deep_merge
 from eve3d.scene import Eve3dError
 
 
+GAUSSIAN_DEVICE = "gpu"
+"""What a cluster job that trains or renders Gaussians asks for (gsplat on CUDA); the CPU
+rasteriser runs anywhere, so a job given no GPU still runs."""
+
+
 @dataclass(frozen=True)
 class Method:
     name: str
@@ -36,6 +41,12 @@ class Method:
     @property
     def trains(self) -> bool:
         return self.fuses is None
+
+    @property
+    def device(self) -> str:
+        """What a cluster job of the method asks for: trained methods train on a GPU, fusing
+        depth made elsewhere needs none."""
+        return GAUSSIAN_DEVICE if self.trains else "cpu"
 
     @property
     def needs_priors(self) -> bool:

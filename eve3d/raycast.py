@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.chunking import chunks
-from eve3d.scene import Camera, Eve3dError
+from eve3d.scene import Camera
 
 
 @dataclass
@@ -49,12 +49,9 @@ class MeshRaycaster:
 
     @classmethod
     def from_file(cls, path: str | Path) -> MeshRaycaster:
-        import open3d as o3d
+        from eve3d.evaluate.common import read_mesh
 
-        mesh = o3d.io.read_triangle_mesh(str(path))
-        if len(mesh.triangles) == 0:
-            raise Eve3dError(f"{path}: not a triangle mesh, or an empty one")
-        return cls([mesh])
+        return cls([read_mesh(Path(path))])
 
     def cast(self, cam: Camera, pixel_offsets: np.ndarray | None = None) -> Hits:
         """One ray per pixel through its centre (arrays (H,W,...)), or one per pixel and

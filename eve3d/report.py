@@ -27,8 +27,9 @@ METRICS_CHARTED = (("fscore", "F-score (higher is better)"), ("chamfer", "Chamfe
                    ("psnr", "held-out PSNR in dB (higher is better)"))
 """summary.csv columns drawn as bar charts, with their axis titles."""
 SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "points", "accuracy", "completeness", "chamfer",
-                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "psnr", "ssim")
-"""The columns of ``summary.csv`` (``eve3d summary``) and of the report's table."""
+                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "psnr", "ssim", "failed", "log")
+"""The columns of ``summary.csv`` (``eve3d summary``) and of the report's table; a row whose
+jobs failed has only ``failed`` (the rule and its first error line) and ``log``."""
 STYLE = ("<style>body{font-family:sans-serif;margin:1em}table{border-collapse:collapse;margin-bottom:1.5em}"
          "th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}th{background:#eee}"
          "td:first-child,td:nth-child(2){text-align:left}</style>")
@@ -62,6 +63,7 @@ def _table(table_id: str, columns: list[str], rows: list[Mapping]) -> str:
 def means(rows: list[dict]) -> list[dict]:
     """Each method's mean of every charted metric over the scenes that have it."""
     out = []
+    rows = [r for r in rows if not r.get("failed")]
     for method in sorted({r["method"] for r in rows}):
         mine = [r for r in rows if r["method"] == method]
         row = {"source": "this run (mean)", "method": method, "scenes": len(mine)}

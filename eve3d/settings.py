@@ -35,9 +35,11 @@ warn and go on, or the check is skipped."""
 TNT_POINTS = ("vertices", "sampled")
 """What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
 official toolbox reads a mesh PLY, or the vertices plus area samples."""
-PRIOR_BACKENDS = ("sgbm", "onnx", "oracle")
+PRIOR_BACKEND_DEVICES = {"sgbm": "cpu", "onnx": "gpu", "oracle": "cpu"}
 """Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs, a
-stereo network exported to ONNX, or the exact depth of a scene with a known mesh."""
+stereo network exported to ONNX, or the exact depth of a scene with a known mesh; each with
+the device its job asks a cluster for (a network runs on the CUDA provider)."""
+PRIOR_BACKENDS = tuple(PRIOR_BACKEND_DEVICES)
 
 
 def setting(default: Any = None, *, factory: Any = None, ge: float | None = None, gt: float | None = None,
@@ -356,10 +358,20 @@ class RenderSettings(Checked):
             return min(self.resolution, self.max_side / max(cam.width, cam.height))
         return self.resolution
 
+    MIN_SIDE: ClassVar[int] = 8
+    """Smallest training image side in pixels (below it the rasteriser, SSIM and NCC have
+    nothing to work on; at 0 px OpenCV's resize asserts)."""
+
     def sized(self, cam: Camera) -> Camera:
-        """``cam`` at the training size (:meth:`scale`)."""
+        """``cam`` at the training size (:meth:`scale`); an error naming ``resolution`` and
+        ``max_side`` when that size is below :attr:`MIN_SIDE`."""
         factor = self.scale(cam)
-        return cam if factor == 1 else cam.scaled(factor)
+        small = cam if factor == 1 else cam.scaled(factor)
+        if min(small.width, small.height) < self.MIN_SIDE:
+            raise Eve3dError(f"{self.SECTION}.resolution {self.resolution:g} (max_side {self.max_side}): view "
+                             f"{cam.name} ({cam.width}×{cam.height}) would be trained at {small.width}×{small.height} "
+                             f"px; the training size needs at least {self.MIN_SIDE} px a side")
+        return small
 
 
 @dataclass

@@ -151,8 +151,8 @@ class Checkpoint:
     def save(self, state: TrainState) -> None:
         """Everything a resumed run needs, written atomically."""
         ckpt = {"fingerprint": self.fingerprint(), **{k: save(state) for k, (save, _) in CHECKPOINT_PARTS.items()}}
-        with atomic_path(self.path) as tmp:
-            torch.save(ckpt, tmp)
+        with atomic_path(self.path) as tmp, open(tmp, "wb") as f:
+            torch.save(ckpt, f)  # to a file object: given a path, torch reports a full disk as a RuntimeError
 
     def resume(self, state: TrainState) -> bool:
         """Restore ``state`` from the checkpoint when its fingerprint matches."""

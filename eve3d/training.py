@@ -120,8 +120,10 @@ class Trainer:
             loss = sum(terms.values())
             if not torch.isfinite(loss):
                 bad = [k for k, v in terms.items() if not torch.isfinite(v)]
+                stage = self.name if self.name == self.s.SECTION else f"{self.s.SECTION} ({self.name})"  # joint (pgsr)
+                progress.close()  # the error starts on a line of its own, not after the bar
                 raise NonFiniteLoss(
-                    f"{self.name}: loss term {', '.join(bad) or 'total'} is not finite at iteration {step}; "
+                    f"{stage}: loss term {', '.join(bad) or 'total'} is not finite at iteration {step}; "
                     f"the last good checkpoint is kept in {self.checkpoint.path} (step {self.checkpoint.saved_step()})")
             loss.backward()
             st.optimizer_step()

@@ -123,3 +123,72 @@ def test_fusion_past_what_open3d_extracts_is_refused_before_fusing(tiny_dataset,
     with pytest.raises(Eve3dError, match=r"open3d extracts a mesh from at most 10\. Use a voxel about [\d.]+× as large"):
         meshing.fuse(scene, tmp_path / "depth", MeshSettings(coarsen=5))
     assert made == [1]  # the probe that counts the blocks, no grid to fuse into
+
+
+def _digests(root: Path) -> dict[str, str]:
+    import hashlib
+
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_killed_training_reruns_to_the_same_result(tmp_path):
+    """A training job killed with SIGKILL in the middle of the workflow, then the workflow
+    rerun: the same Gaussians, mesh scores and depth as an uninterrupted run (one thread, the
+    same seed), resumed from the job's checkpoint, and every artefact written before the kill
+    byte for byte as it was."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+    import torch
+
+    from eve3d.gaussians import GaussianModel
+    from eve3d.layout import Layout
+    from tests.helpers import REPO, snakemake, write_config
+
+    short = {"refine_start": 10, "refine_every": 10, "refine_stop": 40, "reset_every": 0}
+    runs = {}
+    for name in ("straight", "killed"):
+        (tmp_path / name).mkdir()
+        runs[name] = write_config(tmp_path / name, methods=["pgsr"],
+                                  scenes={"tiny": {"synthetic": {"kind": "object", "views": 6, "width": 64, "height": 48}}},
+                                  joint={"iterations": 60, "checkpoint_every": 20, "dn_from": 20, "mv_from": 20,
+                                         "densify": short})
+    # -c1: the job trains on one thread; the target: the scores (no summary, no report)
+    command = ["-c1", "--replace-workflow-config", "--configfile"]
+    target = lambda name: str(Layout(tmp_path / name / "results").metrics("tiny", "pgsr"))  # noqa: E731
+    r = snakemake(target("straight"), *command, str(runs["straight"]))
+    assert r.returncode == 0, r.stderr[-3000:]
+
+    layout = Layout(tmp_path / "killed/results")
+    checkpoint = layout.method("tiny", "pgsr") / "checkpoint.pt"
+    run = subprocess.Popen([sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), target("killed"),
+                            *command, str(runs["killed"])], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not checkpoint.exists() and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert checkpoint.exists(), "the training job wrote no checkpoint"
+    trainer = [p for p in psutil.Process(run.pid).children(recursive=True)
+               if "joint" in p.cmdline() and "eve3d" in p.cmdline()]
+    assert len(trainer) == 1
+    before = _digests(layout.input("tiny"))
+    trainer[0].send_signal(signal.SIGKILL)
+    assert run.wait(timeout=120) != 0
+    assert checkpoint.exists() and not layout.model("tiny", "pgsr").exists()  # nothing that looks complete
+    r = snakemake(target("killed"), *command, str(runs["killed"]))
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "resum" in layout.log("tiny", "joint", "pgsr").read_text()
+    assert _digests(layout.input("tiny")) == before  # the earlier artefacts, untouched
+    assert not checkpoint.exists()
+
+    straight = Layout(tmp_path / "straight/results")
+    a, b = (GaussianModel.load_ply(x.model("tiny", "pgsr")) for x in (straight, layout))
+    assert len(a) == len(b)
+    for key, value in a.params.items():
+        assert torch.allclose(b.params[key], value, atol=1e-5), key
+    scores = [json.loads(x.metrics("tiny", "pgsr").read_text()) for x in (straight, layout)]
+    for key in ("accuracy", "completeness", "precision", "recall", "fscore"):
+        assert scores[1][key] == pytest.approx(scores[0][key], rel=1e-3, abs=1e-5), key

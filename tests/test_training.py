@@ -245,7 +245,7 @@ def test_fused_ssim_matches_the_pytorch_reference(dtype, tol):
         a = torch.rand(shape, generator=g, dtype=dtype).requires_grad_()
         b = torch.rand(shape, generator=g, dtype=dtype)
         ref, fused = ssim(a, b, fused=False), ssim(a, b, fused=True)
-        assert abs(float(ref - fused)) < tol
+        assert abs(float((ref - fused).detach())) < tol
         grad_ref, grad_fused = (torch.autograd.grad(v, a)[0] for v in (ref, fused))
         assert grad_ref.abs().max() > 1e-5
         torch.testing.assert_close(grad_fused, grad_ref, rtol=1e-4, atol=tol * 1e-2)
@@ -358,11 +358,16 @@ def test_nan_stops_with_iteration_and_term_and_keeps_checkpoint(tiny_scene, tmp_
         joint_settings(dn_weight=float("nan"))  # a NaN setting is refused up front
     s = joint_settings(dn_from=30, checkpoint_every=10)
     s.dn_weight = float("nan")  # so the loss term turns NaN at step 30
-    with pytest.raises(NonFiniteLoss, match=r"loss term depth_normal is not finite at iteration 30.*step 30"):
+    (tmp_path / "point_cloud.ply").write_bytes(b"an earlier run's model")
+    with pytest.raises(NonFiniteLoss, match=r"^joint \(pgsr\): loss term depth_normal is not finite at iteration 30;"
+                                            r".*checkpoint.pt \(step 30\)$"):
         train_joint(tiny_scene, tmp_path, s)
     ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     assert ckpt["step"] == 30
     assert all(torch.isfinite(v).all() for v in ckpt["params"].values())
+    # no model of this run is written: the earlier one is intact, and nothing else was
+    assert (tmp_path / "point_cloud.ply").read_bytes() == b"an earlier run's model"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt", "point_cloud.ply"]
 
 
 def test_growth_budget_keeps_the_strongest_candidates():

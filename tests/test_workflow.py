@@ -2,9 +2,11 @@
 import csv
 import json
 import math
+import re
 import shutil
 
 import numpy as np
+import yaml
 import pytest
 from PIL import Image
 
@@ -204,13 +206,39 @@ def test_tiny_training_run(tmp_path):
     assert math.isfinite(nvs["psnr"]) and float(summary["tiny-nvs", "3dgs"]["psnr"]) == pytest.approx(nvs["psnr"])
 
 
-def test_tiny_run_then_rerun_one_stage(tmp_path):
-    cfg = write_config(tmp_path)
+def test_tiny_run_with_a_failed_scene_then_rerun_one_stage(tmp_path):
+    """The oracle on the tiny scene beside a scene whose SfM fails (photos of noise): with
+    --keep-going the tiny scene finishes, and the summary and the report list the failed one
+    with its first error line and log. Rerun without it, no failure is listed; --forcerun
+    then reruns one stage and what depends on it, nothing upstream."""
+    import cv2
+
+    photos = tmp_path / "noise" / "images"
+    photos.mkdir(parents=True)
+    for i in range(4):
+        cv2.imwrite(str(photos / f"{i:03d}.png"), np.random.default_rng(i).integers(0, 255, (48, 64, 3), np.uint8))
+    scenes = yaml.safe_load(write_config(tmp_path).read_text())["scenes"]
+    cfg = write_config(tmp_path, scenes={**scenes, "noise": {"path": str(tmp_path / "noise"), "methods": ["pgsr"]}})
+    r = snakemake("-c2", "--keep-going", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode != 0
     results = tmp_path / "results"
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
+    layout = Layout(results)
+    rows = {(row["scene"], row["method"]): row for row in csv.DictReader(open(layout.summary()))}
+    assert set(rows) == {("tiny", "oracle"), ("noise", "pgsr")}
+    failed = rows["noise", "pgsr"]
+    assert failed["failed"] == (f"sfm: eve3d sfm: error: {photos}: SfM could not register any image pair "
+                                "(too little texture or overlap?)")
+    assert failed["log"] == str(layout.log("noise", "sfm")) and failed["fscore"] == ""
+    assert f"failed: noise pgsr: sfm: eve3d sfm: error: {photos}" in r.stderr
+    page = (layout.report_pages() / "summary.html").read_text()
+    assert "noise" in page and "SfM could not register any image pair" in page
+
+    tiny = write_config(tmp_path)  # the failed scene left out
+    r = snakemake("-c2", "--configfile", str(tiny), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
-    rows = list(csv.DictReader(open(Layout(results).summary())))
-    assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "oracle")]
+    assert not layout.failures().exists()
+    rows = list(csv.DictReader(open(layout.summary())))
+    assert [(row["scene"], row["method"]) for row in rows] == [("tiny", "oracle")] and not rows[0]["failed"]
     assert float(rows[0]["fscore"]) > 0.5
     assert float(rows[0]["depth_signed_error"]) == 0 and float(rows[0]["depth_error"]) == 0  # fused the exact depth
     assert_synth_input(results / "tiny/input", 12, 160, 120)
@@ -220,8 +248,7 @@ def test_tiny_run_then_rerun_one_stage(tmp_path):
     assert float(rows[0]["fscore"]) == pytest.approx(m["fscore"])
     mesh_time = (results / "tiny/oracle/mesh.ply").stat().st_mtime_ns
     prior_time = (results / "tiny/priors/oracle/000.npz").stat().st_mtime_ns
-    # --forcerun reruns one stage and what depends on it, nothing upstream.
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config", "--forcerun", "mesh")
+    r = snakemake("-c2", "--configfile", str(tiny), "--replace-workflow-config", "--forcerun", "mesh")
     assert r.returncode == 0, r.stderr[-3000:]
     assert (results / "tiny/oracle/mesh.ply").stat().st_mtime_ns > mesh_time
     assert (results / "tiny/priors/oracle/000.npz").stat().st_mtime_ns == prior_time
@@ -310,3 +337,71 @@ def test_dry_run_of_dtu_and_nvs_scenes(tmp_path, object_scene, object_dataset):
     assert f"evaluate --check --scene {scan} --out {tmp_path}/results/scan1/ground_truth_check.json --protocol dtu" in out
     assert f"--protocol nvs --model {tmp_path}/results/views/pgsr/point_cloud.ply" in out
     assert '\\"holdout\\": 8' in out or '"holdout": 8' in out
+
+
+def test_failed_rows_name_the_job_each_row_waited_for(tmp_path):
+    """From Snakemake's log of failed jobs: a method's own training failure names that row
+    only; a prior backend's failure names the rows left without metrics; a row with metrics
+    is not listed."""
+    from eve3d.failures import failed_jobs, failed_rows
+
+    layout = Layout(tmp_path / "results")
+    layout.metrics("tiny", "oracle").parent.mkdir(parents=True)
+    layout.metrics("tiny", "oracle").write_text("{}")
+    joint, priors = layout.log("tiny", "joint", "pgsr"), layout.log("tiny", "stereo_depth", "sgbm")
+    joint.parent.mkdir(parents=True)
+    joint.write_text("pgsr:  12%|#| 12/100\nTraceback (most recent call last):\n  File \"x.py\"\n"
+                     "RuntimeError: the loss is NaN at iteration 12\n")
+    priors.write_text("eve3d stereo-depth: error: /data/images/003.png: corrupt or unreadable image\n")
+    log = tmp_path / "snakemake.log"
+    log.write_text(f"Error in rule joint:\n    jobid: 4\n    log: {joint} (check log file(s) for error details)\n"
+                   f"    shell:\n        ...\nSomething else\nError in rule stereo_depth:\n    jobid: 2\n"
+                   f"    log: {priors} (check log file(s) for error details)\n")
+    rows = failed_rows(layout, [("tiny", m) for m in ("oracle", "pgsr", "stereo-tsdf")], failed_jobs([log]))
+    assert rows == [
+        {"scene": "tiny", "method": "pgsr", "failed": "joint: RuntimeError: the loss is NaN at iteration 12",
+         "log": str(joint)},
+        {"scene": "tiny", "method": "stereo-tsdf",
+         "failed": "stereo_depth: eve3d stereo-depth: error: /data/images/003.png: corrupt or unreadable image",
+         "log": str(priors)}]
+
+
+def test_progress_shows_job_starts_ends_and_the_training_bar(tmp_path):
+    """The logger plugin's handler: a line per job start and end with its stage, scene,
+    method and wall time; the running job's latest bar from its log (no drawing), printed
+    once while it does not change; errors as Snakemake formats them."""
+    import io
+    import logging
+    import time
+
+    from snakemake_interface_logger_plugins.common import LogEvent
+
+    from eve3d.progress import ProgressHandler, latest_progress
+
+    log = tmp_path / "joint_eve3d.log"
+    log.write_text("eve3d: loading images\neve3d:  10%|#         | 10/100 [00:01<00:09, 9.9it/s, loss=0.2, psnr=12.00]"
+                   "\reve3d:  20%|##        | 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]")
+    assert latest_progress(log) == "eve3d: 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]"
+    assert latest_progress(tmp_path / "missing.log") is None
+
+    def record(event, level=logging.INFO, msg="", **fields):
+        r = logging.LogRecord("snakemake", level, "", 0, msg, None, None)
+        r.event = event
+        r.__dict__.update(fields)
+        return r
+
+    out = io.StringIO()
+    handler = ProgressHandler(out, interval=0.2)
+    handler.emit(record(LogEvent.PROGRESS, done=3, total=9))
+    handler.emit(record(LogEvent.JOB_INFO, jobid=7, rule_name="joint", wildcards={"scene": "tiny", "method": "eve3d"},
+                        log=[str(log)]))
+    time.sleep(1.5)  # the poller reads the log; the line does not change, so it is printed once
+    handler.emit(record(LogEvent.JOB_FINISHED, job_id=7))
+    handler.emit(record(None, logging.INFO, "Select jobs to execute..."))  # chatter: not shown
+    handler.emit(record(LogEvent.ERROR, logging.ERROR, "WorkflowError: at least one job failed"))
+    handler.close()
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "[3/9] start   joint tiny eve3d"
+    assert lines[1] == "        joint tiny eve3d: eve3d: 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]"
+    assert re.fullmatch(r"\[4/9\] done    joint tiny eve3d  [12] s", lines[2]), lines
+    assert lines[3:] == ["WorkflowError: at least one job failed"]

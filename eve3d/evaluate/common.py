@@ -17,8 +17,11 @@ def read_mesh(path: Path):
     if not Path(path).is_file():
         raise Eve3dError(f"{path}: mesh not found")
     mesh = o3d.io.read_triangle_mesh(str(path))
+    if len(mesh.triangles) == 0 and len(mesh.vertices):  # distances to a surface need its triangles
+        raise Eve3dError(f"{path}: a point cloud ({len(mesh.vertices)} points, no triangles), not a triangle mesh")
     if len(mesh.triangles) == 0:
-        raise Eve3dError(f"{path}: not a triangle mesh, or an empty one")
+        raise Eve3dError(f"{path}: not a triangle mesh that open3d reads (.ply, .obj, .off, .stl, .glb), or an "
+                         f"empty one")
     return mesh
 
 

@@ -1,6 +1,11 @@
 """COLMAP models (binary or text) ↔ ``Scene``, through pycolmap."""
 from __future__ import annotations
 
+import functools
+import mmap
+import re
+import struct
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -35,10 +40,139 @@ def read_reconstruction(model_dir: Path):
 
     if not model_file(model_dir, "cameras").exists():
         raise Eve3dError(f"{model_dir}: no COLMAP model here (cameras.bin or cameras.txt)")
+    check_model_files(model_dir)
     try:
         return pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises plain RuntimeError/ValueError with C++ text
         raise Eve3dError(f"{model_dir}: cannot read COLMAP model: {str(e).strip().splitlines()[-1]}") from None
+
+
+def check_model_files(model_dir: Path) -> None:
+    """Refuse a model whose files are cut short or are not COLMAP's, before pycolmap reads
+    them: its binary reader does not check for the end of a file (a cut or garbage
+    ``points3D.bin`` asks for gigabytes, a garbage ``frames.bin`` loops for minutes, a cut
+    ``cameras.bin`` gives cameras of zeros), and its text reader drops a last image whose
+    POINTS2D line is missing and stops at the end of a cut ``images.txt`` without a word."""
+    if all((model_dir / f"{what}.bin").exists() for what in ("cameras", "images", "points3D")):
+        for what, (noun, size, record) in _BINARY_RECORDS.items():
+            if (model_dir / f"{what}.bin").exists():
+                _walk_binary(model_dir / f"{what}.bin", noun, size, record)
+    elif (model_dir / "images.txt").exists():
+        check_images_txt(model_dir / "images.txt")
+
+
+class _BadRecord(Exception):
+    """What is wrong with one record of a binary model file (``_walk_binary`` names it)."""
+
+
+@functools.cache
+def _camera_params() -> dict[int, int]:
+    """COLMAP camera model id → its number of parameters."""
+    pycolmap = import_pycolmap()
+    return {int(mid): len(pycolmap.Camera.create_from_model_name(1, name, 1.0, 1, 1).params)
+            for name, mid in pycolmap.CameraModelId.__members__.items() if name != "INVALID"}
+
+
+def _camera_record(buf, off: int) -> int:
+    _, model, _, _ = struct.unpack_from("<IiQQ", buf, off)
+    if model not in _camera_params():
+        raise _BadRecord(f"camera model id {model}, which COLMAP does not define")
+    return off + 24 + 8 * _camera_params()[model]
+
+
+def _image_record(buf, off: int) -> int:
+    end = buf.find(b"\0", off + 64)  # id, pose (7 doubles), camera id, then the name up to a NUL
+    if end < 0:
+        raise struct.error("no end of the image name")
+    (points,) = struct.unpack_from("<Q", buf, end + 1)
+    return end + 9 + 24 * points
+
+
+def _point_record(buf, off: int) -> int:
+    (track,) = struct.unpack_from("<Q", buf, off + 43)  # after id, xyz, rgb, error
+    return off + 51 + 8 * track
+
+
+def _rig_record(buf, off: int) -> int:
+    _, sensors = struct.unpack_from("<II", buf, off)
+    off += 16 if sensors else 8  # the reference sensor (type, id)
+    for _ in range(max(sensors - 1, 0)):  # the others: type, id, has a pose, the pose
+        (has_pose,) = struct.unpack_from("<B", buf, off + 8)
+        off += 9 + (56 if has_pose else 0)
+    return off
+
+
+def _frame_record(buf, off: int) -> int:
+    (data,) = struct.unpack_from("<I", buf, off + 64)  # after id, rig id, pose
+    return off + 68 + 16 * data
+
+
+_BINARY_RECORDS: dict[str, tuple[str, int, Callable[..., int]]] = {
+    "cameras": ("camera", 24, _camera_record), "images": ("image", 73, _image_record),
+    "points3D": ("point", 51, _point_record), "rigs": ("rig", 8, _rig_record), "frames": ("frame", 68, _frame_record)}
+"""A binary model file → what its records are, their smallest size, and a function that
+returns the offset after the record at an offset (COLMAP's layout, as pycolmap 4.2 writes it)."""
+
+
+def _walk_binary(path: Path, noun: str, smallest: int, record: Callable[..., int]) -> None:
+    """Walk the records of a COLMAP binary file (a count, then the records) without keeping
+    them: an error names the file and the record that runs past its end or makes no sense."""
+    size = path.stat().st_size
+    if size < 8:
+        raise Eve3dError(f"{path}: {size} bytes, too short for a COLMAP {path.name}: truncated?")
+    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+        (count,) = struct.unpack_from("<Q", buf, 0)
+        counted = f"{count} {noun}" + ("" if count == 1 else "s")
+        if count * smallest > size - 8:
+            raise Eve3dError(f"{path}: declares {counted}, more than its {size} bytes can hold: truncated, or not a "
+                             f"COLMAP {path.name}")
+        off = 8
+        for i in range(count):
+            try:
+                off = record(buf, off)
+            except struct.error:
+                off = size + 1
+            except _BadRecord as e:
+                raise Eve3dError(f"{path}: {noun} {i + 1} of {count}: {e}: not a COLMAP {path.name}?") from None
+            if off > size:
+                raise Eve3dError(f"{path}: {noun} {i + 1} of the {counted} it declares runs past the end of the file "
+                                 f"({size} bytes): truncated, or not a COLMAP {path.name}")
+    if off != size:
+        raise Eve3dError(f"{path}: {size - off} bytes after its {counted}: not a COLMAP {path.name}?")
+
+
+_DECLARED_IMAGES = re.compile(r"#\s*Number of images:\s*(\d+)")
+
+
+def check_images_txt(path: Path) -> None:
+    """A COLMAP ``images.txt`` whose records are whole: each image a pose line and the
+    POINTS2D line after it (which may be empty), as many images as its header declares
+    (``# Number of images: N``, when it has one), the last POINTS2D line whole triples."""
+    declared, images, last = None, 0, None
+    with open(path, errors="replace") as f:
+        lines = enumerate(f, 1)
+        for number, line in lines:
+            text = line.strip()
+            if text.startswith("#"):
+                found = _DECLARED_IMAGES.match(text)
+                declared = int(found[1]) if found else declared
+                continue
+            if not text:
+                continue  # blank lines between images (COLMAP skips them too)
+            fields = text.split()
+            if len(fields) < 10:
+                raise Eve3dError(f"{path}: line {number}: an image line has 10 fields (IMAGE_ID, QW, QX, QY, QZ, "
+                                 f"TX, TY, TZ, CAMERA_ID, NAME), this one {len(fields)}: truncated?")
+            last = next(lines, None)
+            if last is None:
+                raise Eve3dError(f"{path}: line {number}: image {fields[9]!r} has no POINTS2D line after it (the file "
+                                 f"ends there): truncated?")
+            images += 1
+    if last is not None and len(last[1].split()) % 3:
+        raise Eve3dError(f"{path}: line {last[0]}: the POINTS2D line ends inside an (X, Y, POINT3D_ID) triple: "
+                         f"truncated?")
+    if declared is not None and declared != images:
+        raise Eve3dError(f"{path}: its header declares {declared} images, the file holds {images}: truncated?")
 
 
 def intrinsics(camera) -> np.ndarray:

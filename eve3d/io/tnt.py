@@ -13,13 +13,26 @@ from eve3d.scene import Eve3dError
 
 def read_log_trajectory(path: Path) -> list[np.ndarray]:
     """The T&T/Redwood ``.log`` format: per camera a metadata line and a 4×4 matrix."""
-    rows = [line.split() for line in path.read_text().splitlines() if line.strip()]
+    try:
+        lines = path.read_text().splitlines()
+    except UnicodeDecodeError:
+        raise Eve3dError(f"{path}: not a text file; a trajectory (.log) holds per camera a metadata line and the 4 "
+                         f"rows of a 4×4 matrix") from None
+    rows = [(number, line.split()) for number, line in enumerate(lines, 1) if line.strip()]
     if len(rows) % 5:
         raise Eve3dError(f"{path}: expected blocks of 5 lines (metadata + 4×4 matrix), got {len(rows)} lines")
-    try:
-        return [np.array(rows[i + 1:i + 5], dtype=np.float64) for i in range(0, len(rows), 5)]
-    except ValueError as e:
-        raise Eve3dError(f"{path}: malformed trajectory ({e})") from None
+    poses = []
+    for first in range(0, len(rows), 5):
+        matrix = rows[first + 1:first + 5]
+        for number, row in matrix:  # a ragged block would make a matrix of another shape
+            if len(row) != 4:
+                raise Eve3dError(f"{path}: line {number}: expected a row of 4 numbers (camera {first // 5}'s 4×4 "
+                                 f"matrix), got {len(row)} values")
+        try:
+            poses.append(np.array([row for _, row in matrix], dtype=np.float64))
+        except ValueError as e:
+            raise Eve3dError(f"{path}: malformed trajectory ({e})") from None
+    return poses
 
 
 def tnt_name(root: Path) -> str | None:

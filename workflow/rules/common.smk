@@ -12,7 +12,7 @@ from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_pr
 from eve3d.io.loader import has_poses
 from eve3d.layout import PRETRAIN, Layout
 from eve3d.scene import Eve3dError
-from eve3d.settings import PretrainSettings, RenderSettings, flag, pick
+from eve3d.settings import PRIOR_BACKEND_DEVICES, PretrainSettings, RenderSettings, flag, pick
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")
@@ -23,7 +23,7 @@ config.update(_resolved)
 
 LAYOUT = Layout(config["results"])  # every path under the results folder (eve3d/layout.py)
 SCENES = list(config["scenes"])
-from eve3d.methods import methods
+from eve3d.methods import GAUSSIAN_DEVICE, methods
 
 try:
     PROTOCOL = {s: scene_protocol(s, config["scenes"][s]) for s in SCENES}
@@ -69,6 +69,29 @@ CONDA_ENV = "../../envs/eve3d.yaml"
 wildcard_constraints:
     scene="|".join(map(re.escape, SCENES)) if SCENES else "$^",
     method="|".join(map(re.escape, METHODS)) if METHODS else "$^",
+
+
+# What a cluster job asks for beyond the profile's time, memory and cores
+# (workflow/profiles/slurm): one GPU where its stage runs on one, of the site's model where
+# EVE3D_SLURM_GPU_MODEL names it. A local run ignores these.
+GPU_MODEL = os.environ.get("EVE3D_SLURM_GPU_MODEL", "")
+
+
+def all_cores():
+    """A job that takes every core (OpenMP in the CPU rasteriser, SfM's matching): a local
+    run's --cores; a cluster job's cores are the profile's set-threads (no --cores there)."""
+    return workflow.resource_settings.cores or 1
+
+
+def device_resources(device):
+    """The resources of a job that runs on ``device(wildcards)``: "gpu" or "cpu"."""
+    resources = {"gpu": lambda wc: int(device(wc) == "gpu")}
+    if GPU_MODEL:
+        resources["gpu_model"] = lambda wc: GPU_MODEL if device(wc) == "gpu" else ""
+    return resources
+
+
+ON_GAUSSIAN_DEVICE = device_resources(lambda wc: GAUSSIAN_DEVICE)  # training, and rendering a trained model
 
 
 def scene_config(scene):

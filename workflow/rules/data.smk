@@ -32,7 +32,7 @@ rule sfm:
         LAYOUT.log("{scene}", "sfm"),
     benchmark:
         LAYOUT.benchmark("{scene}", "sfm"),
-    threads: lambda wc: config["sfm"]["threads"] if config["sfm"]["threads"] > 0 else workflow.cores
+    threads: lambda wc: config["sfm"]["threads"] if config["sfm"]["threads"] > 0 else all_cores()
     conda:
         CONDA_ENV
     shell:

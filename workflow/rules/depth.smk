@@ -15,6 +15,8 @@ rule stereo_render:
         LAYOUT.log("{scene}", "stereo_render"),
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_render"),
+    resources:
+        **ON_GAUSSIAN_DEVICE,
     conda:
         CONDA_ENV
     shell:
@@ -28,7 +30,7 @@ rule stereo_depth:
     output:
         directory(LAYOUT.priors("{scene}", "{backend}")),
     wildcard_constraints:
-        backend="oracle|sgbm|onnx",
+        backend="|".join(PRIOR_BACKEND_DEVICES),
     params:
         args=stereo_depth_args,
         config=lambda wc: job_config("stereo"),
@@ -36,6 +38,8 @@ rule stereo_depth:
         LAYOUT.log("{scene}", "stereo_depth", "{backend}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_depth", "{backend}"),
+    resources:
+        **device_resources(lambda wc: PRIOR_BACKEND_DEVICES[wc.backend]),
     conda:
         CONDA_ENV
     shell:

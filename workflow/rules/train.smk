@@ -17,7 +17,9 @@ rule pretrain:
         LAYOUT.log("{scene}", "pretrain"),
     benchmark:
         LAYOUT.benchmark("{scene}", "pretrain"),
-    threads: workflow.cores
+    threads: all_cores()
+    resources:
+        **ON_GAUSSIAN_DEVICE,
     conda:
         CONDA_ENV
     shell:
@@ -42,7 +44,9 @@ rule joint:
         LAYOUT.log("{scene}", "joint", "{method}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "joint", "{method}"),
-    threads: workflow.cores
+    threads: all_cores()
+    resources:
+        **device_resources(lambda wc: METHOD[wc.method].device),
     conda:
         CONDA_ENV
     shell:
