@@ -1040,9 +1040,10 @@ def bench_scale(work: Path, config: dict, memory: bool = False, kind: str = SCAL
     import yaml
 
     from eve3d.layout import EVALUATION, METRICS_FILE, RECORD
-    from eve3d.settings import SyntheticSettings, from_mapping
+    from eve3d.settings import MeshSettings, SyntheticSettings, from_mapping
 
     synthetic = from_mapping(SyntheticSettings, config.get("synthetic") or {}, "synthetic")
+    coarsen = from_mapping(MeshSettings, config.get("mesh") or {}, "mesh").coarsen
     if work.exists() and any(work.iterdir()):
         raise Eve3dError(f"{work}: not empty; give a new or empty folder for the bench's data")
     work.mkdir(parents=True, exist_ok=True)
@@ -1076,7 +1077,7 @@ def bench_scale(work: Path, config: dict, memory: bool = False, kind: str = SCAL
             scores[str(path.parent.relative_to(work))] = {
                 k: m.get(k) for k in ("protocol", "precision", "recall", "fscore", "chamfer", "n_recon", "n_gt")}
     return {"mode": "memory" if memory else "pipeline", "preset": config.get("preset", "cpu"),
-            "scene": f"{kind}, {synthetic.views} views, {size[0]}x{size[1]}",
+            "scene": f"{kind}, {synthetic.views} views, {size[0]}x{size[1]}", "mesh_coarsen": coarsen,
             "iterations": {s: (config.get(s) or {}).get("iterations") for s in ("pretrain", "joint")},
             "machine": machine(), "load_average": [load_before, os.getloadavg()[0]], "work": str(work),
             "stages": [asdict(r) for r in rows], "scores": scores}
@@ -1102,7 +1103,8 @@ def format_scale_report(report: dict) -> str:
                   f"{cell(s['fscore'], 7, '.4f')} {cell(s['chamfer'], 9, '.5g')}" for k, s in report["scores"].items()]
     iterations = ", ".join(f"{k} {v}" for k, v in report["iterations"].items() if v is not None)
     before, after = report["load_average"]
-    lines += ["", f"{report['mode']} mode: {report['scene']}; preset {report['preset']}"
+    lines += ["", f"{report['mode']} mode: {report['scene']}; preset {report['preset']}, "
+                  f"mesh.coarsen {report['mesh_coarsen']:g}"
               + (f" ({iterations} iterations)" if report["mode"] == "pipeline" and iterations else ""),
               f"{report['machine']}; load average (1 min) {before:.1f} before, {after:.1f} after",
               f"data and logs in {report['work']}"]

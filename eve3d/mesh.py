@@ -2,12 +2,13 @@
 
 Uses open3d's tensor ``VoxelBlockGrid`` (the legacy ``ScalableTSDFVolume`` returns empty
 meshes in open3d 0.20). Its block count is preallocated, so it is sized from the blocks the
-depth maps actually touch.
+depth maps actually touch. A large scene is fused and meshed a slab of blocks at a time:
+open3d's marching cubes crashes past 262,144 blocks, and a slab bounds the memory.
 """
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,10 @@ MAX_BLOCKS = 2**31 // (BLOCK_RESOLUTION**3 * 16)
 """Blocks open3d (0.20, CPU) can extract a mesh from: its marching cubes keeps 4 int32 per
 voxel and addresses them with 32-bit byte offsets, so past 262,144 blocks it crashes
 (segmentation fault, measured: 262,144 extract, 262,200 do not)."""
+TILE_BLOCKS = MAX_BLOCKS // 2
+"""Blocks of one grid at most: a scene that touches more is fused and meshed a slab at a
+time. A block is about 10 KB of grid and 8 KB of marching-cubes buffers, so a grid of
+131,072 blocks peaks at about 2.5 GB."""
 
 
 def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
@@ -138,18 +143,30 @@ def _block_coords(grid, frame: tuple, s: MeshSettings, depth_max: float):
         return None
 
 
-def block_count(scene: Scene, depth_dir: Path, s: MeshSettings, voxel: float) -> int:
-    """The blocks the fusion allocates, exactly: the union of the blocks each view touches
-    (open3d's own test, ``compute_unique_block_coordinates``, gathered in a hash set),
-    plus the most that one view touches (0 when no view touches one). open3d grows the
-    grid's hash map (a copy of every block) whenever its size plus a view's blocks would
-    pass its capacity; with this capacity it never does, and nothing is allocated that no
-    view reaches."""
+@dataclass
+class GridPlan:
+    """What the counting pass found: the blocks of BLOCK_RESOLUTION³ voxels the views touch
+    (open3d's own test, ``compute_unique_block_coordinates``) and where each view reaches."""
+
+    voxel: float
+    blocks: np.ndarray
+    """(N, 3) int32 block coordinates, every block some view touches."""
+    most: int
+    """The most blocks one view touches. open3d grows a grid's hash map (a copy of every
+    block) whenever its size plus a view's blocks would pass its capacity: a grid of the
+    blocks it will hold plus this many never grows."""
+    reach: dict[str, np.ndarray]
+    """Per view id, the (2, 3) lowest and highest block coordinates it touches (views that
+    touch none are left out)."""
+
+
+def count_blocks(scene: Scene, depth_dir: Path, s: MeshSettings, voxel: float) -> GridPlan:
+    """The blocks the views touch at ``voxel``, gathered a view at a time in a hash set."""
     import open3d.core as o3c
 
     probe, depth_max = _grid(voxel, 1), float(s.depth_max) if s.depth_max else 1e6
     touched = o3c.HashSet(1024, o3c.int32, (3,), o3c.Device("CPU:0"))
-    most, valid = 0, False
+    most, valid, reach = 0, False, {}
     for cam, depth in fused_depths(scene, depth_dir, s, "TSDF blocks", leave=False):
         if not (depth > 0).any():
             continue
@@ -158,62 +175,124 @@ def block_count(scene: Scene, depth_dir: Path, s: MeshSettings, voxel: float) ->
         if coords is not None:
             touched.insert(coords)
             most = max(most, len(coords))
+            c = coords.numpy()
+            reach[cam.view_id] = np.stack([c.min(0), c.max(0)])
     if not valid:
         raise _nothing_to_fuse(depth_dir)
-    if not touched.size():
-        return 0
-    if touched.size() > MAX_BLOCKS:  # refused before the fusion, not a crash after it
-        raise Eve3dError(f"{depth_dir}: at voxel {voxel:.4g} the views touch {touched.size():,} blocks of "
-                         f"{BLOCK_RESOLUTION}³ voxels; open3d extracts a mesh from at most {MAX_BLOCKS:,}. Use a voxel "
-                         f"about {1.05 * np.sqrt(touched.size() / MAX_BLOCKS):.2g}× as large (mesh.coarsen, "
-                         f"mesh.voxel) or a smaller region (mesh.region)")
-    return touched.size() + most
+    blocks = touched.key_tensor()[touched.active_buf_indices().to(o3c.int64)].numpy()
+    return GridPlan(voxel, blocks.reshape(-1, 3), most, reach)
 
 
-def plan_grid(scene: Scene, depth_dir: Path, s: MeshSettings) -> tuple[float, int]:
-    """Voxel size and the block count of the grid (:func:`block_count`). Each pass reads
-    the depth maps one at a time."""
+def plan_grid(scene: Scene, depth_dir: Path, s: MeshSettings) -> GridPlan:
+    """The voxel (``mesh.voxel``, else the scene's at ``mesh.coarsen``) and the blocks the
+    views touch at it. Each pass reads the depth maps one at a time."""
     voxel = s.voxel
     if voxel is None:
         voxel = 0.002 * scene.object_radius * s.coarsen if scene.kind == "object" else scene_voxel(scene, depth_dir, s)
-    return voxel, block_count(scene, depth_dir, s, voxel)
+    return count_blocks(scene, depth_dir, s, voxel)
+
+
+def slabs(plan: GridPlan, depth_dir: Path) -> tuple[int, list[tuple[int, int]]]:
+    """The axis of the most block layers and consecutive ranges [a, b) of its layers, each
+    of at most TILE_BLOCKS blocks with one layer more on either side (its grid's margin:
+    marching cubes reads a cell's neighbours), covering every block; one range when the
+    whole grid fits."""
+    keys = plan.blocks
+    if len(keys) <= TILE_BLOCKS:
+        return 0, [(int(keys[:, 0].min()), int(keys[:, 0].max()) + 1)]
+    axis = int(np.argmax(keys.max(0) - keys.min(0)))
+    lo = int(keys[:, axis].min())
+    layers = np.bincount(keys[:, axis] - lo)
+    held = lambda a, b: int(layers[max(a - 1, 0):b + 1].sum())  # noqa: E731  (layers a-1 … b, as offsets)
+    ranges, a = [], 0
+    while a < len(layers):
+        b = a + 1
+        if held(a, b) > MAX_BLOCKS:  # refused before the fusion, not a crash after it
+            raise Eve3dError(
+                f"{depth_dir}: at voxel {plan.voxel:.4g} three layers of blocks of {BLOCK_RESOLUTION}³ voxels hold "
+                f"{held(a, b):,} blocks; open3d extracts a mesh from at most {MAX_BLOCKS:,}. Use a larger voxel "
+                f"(mesh.coarsen, mesh.voxel) or a smaller region (mesh.region)")
+        while b < len(layers) and held(a, b + 1) <= TILE_BLOCKS:
+            b += 1
+        ranges.append((lo + a, lo + b))
+        a = b
+    return axis, ranges
+
+
+def _welded(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
+    """One open3d mesh of the slabs' (vertices, triangles, colours), the vertices that two
+    slabs share on their seam made one (the same cells give bit-identical vertices)."""
+    import open3d as o3d
+
+    vertices = np.concatenate([v for v, _, _ in parts])
+    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts[:-1]])
+    triangles = np.concatenate([t + o for (_, t, _), o in zip(parts, offsets)])
+    unique, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(unique),
+                                     o3d.utility.Vector3iVector(inverse.ravel()[triangles]))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.concatenate([c for _, _, c in parts])[first])
+    return mesh
 
 
 def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
     """TSDF-fuse the depth maps in ``depth_dir`` (``{view}.npz``) → open3d legacy mesh. The
-    maps are read one at a time (one pass for the voxel of an open scene, one for the grid's
-    size, one to fuse), so memory is the grid's and one view's."""
+    maps are read one at a time (one pass for the voxel of an open scene, one to count the
+    blocks, one to fuse), so memory is the grid's and one view's. A scene of more than
+    TILE_BLOCKS blocks is fused and meshed a slab at a time (:func:`slabs`; each slab reads
+    the views that reach it): the same mesh, with a grid of at most TILE_BLOCKS blocks."""
     import open3d as o3d
     import open3d.core as o3c
 
     s = settings or MeshSettings()
-    voxel, blocks = plan_grid(scene, depth_dir, s)
-    depth_max = float(s.depth_max) if s.depth_max else 1e6
-    vbg = _grid(voxel, max(blocks, 1))
-    fused = 0
-    views = fused_depths(scene, depth_dir, s, f"TSDF (voxel {voxel:.4g}, {blocks} blocks)") if blocks else ()
-    for cam, depth in views:
-        if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
+    plan = plan_grid(scene, depth_dir, s)
+    voxel, depth_max = plan.voxel, float(s.depth_max) if s.depth_max else 1e6
+    axis, ranges = slabs(plan, depth_dir) if len(plan.blocks) else (0, [])
+    fused_views, parts = set(), []
+    for k, (a, b) in enumerate(ranges):
+        near = lambda c: (c[..., axis] >= a - 1) & (c[..., axis] <= b)  # noqa: E731  (the slab and its margin)
+        held = int(near(plan.blocks).sum())
+        seen = [cam for cam in scene.cameras if cam.view_id in plan.reach and
+                plan.reach[cam.view_id][0, axis] <= b and plan.reach[cam.view_id][1, axis] >= a - 1]
+        vbg = _grid(voxel, held + plan.most)
+        desc = f"TSDF (voxel {voxel:.4g}, {held} blocks" + (f", slab {k + 1}/{len(ranges)})" if len(ranges) > 1 else ")")
+        for cam, depth in fused_depths(replace(scene, cameras=seen), depth_dir, s, desc, leave=len(ranges) == 1):
+            if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
+                continue
+            frame = _frame(cam, depth)
+            coords = _block_coords(vbg, frame, s, depth_max)
+            if coords is not None and len(ranges) > 1:
+                coords = coords[o3c.Tensor(near(coords.numpy()))]
+            if coords is None or not len(coords):
+                continue
+            intrinsic, extrinsic, depth_img = frame
+            if cam.image_path is not None and cam.image_path.exists():
+                rgb = read_view(cam).astype(np.float32) / 255.0
+            else:
+                rgb = np.full((cam.height, cam.width, 3), 0.7, np.float32)
+            color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
+            vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
+                          trunc_voxel_multiplier=s.trunc_factor)
+            fused_views.add(cam.view_id)
+        if not vbg.hashmap().size():  # open3d cannot extract from a grid that no view reached
             continue
-        frame = _frame(cam, depth)
-        coords = _block_coords(vbg, frame, s, depth_max)
-        if coords is None:
-            continue
-        intrinsic, extrinsic, depth_img = frame
-        if cam.image_path is not None and cam.image_path.exists():
-            rgb = read_view(cam).astype(np.float32) / 255.0
-        else:
-            rgb = np.full((cam.height, cam.width, 3), 0.7, np.float32)
-        color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
-        vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
-                      trunc_voxel_multiplier=s.trunc_factor)
-        fused += 1
-    mesh = o3d.geometry.TriangleMesh()  # open3d cannot extract from a grid that no view reached
-    if fused:
         extracted = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold)
         del vbg  # the grid goes before the mesh is converted (each a few GB at the DESIGN voxel on a large scene)
-        mesh = extracted.to_legacy()
+        piece = extracted.to_legacy()
         del extracted
+        if len(ranges) == 1:
+            parts.append(piece)
+            continue
+        v, t = np.asarray(piece.vertices), np.asarray(piece.triangles)
+        # each slab keeps the triangles whose centre lies in its own layers
+        centre = v[t, axis].mean(1) / (voxel * BLOCK_RESOLUTION)
+        keep = (centre >= a if k else True) & (centre < b if k < len(ranges) - 1 else True)
+        parts.append((v, t[keep], np.asarray(piece.vertex_colors)))
+    if len(ranges) > 1 and parts:
+        mesh = _welded(parts)
+        mesh.remove_unreferenced_vertices()
+    else:
+        mesh = parts[0] if parts else o3d.geometry.TriangleMesh()
+    fused = len(fused_views)
     region = scene.region(s.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths
         mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(*region))

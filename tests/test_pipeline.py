@@ -77,10 +77,13 @@ def test_canonical_order_ignores_the_order_a_mesh_comes_in():
 
 
 @pytest.mark.parametrize("kind", ["object", "room"])
-def test_fusion_allocates_exactly_the_blocks_it_fuses(kind, tmp_path, monkeypatch):
+def test_fusion_allocates_exactly_the_blocks_it_fuses_a_slab_at_a_time(kind, tmp_path, monkeypatch):
     """The grid is sized, reading a view at a time, to the blocks the views touch plus
-    one view's worth, so open3d never grows it; and the mesh is the one a grid of 8 times
-    as many blocks gives (the size only holds blocks), vertex for vertex."""
+    one view's worth, so open3d never grows it; the mesh is the one a grid of 8 times as
+    many blocks gives (the size only holds blocks); and fused a slab of about 300 blocks at
+    a time (open3d extracts from at most 262,144), it is the same mesh vertex for vertex."""
+    from dataclasses import replace
+
     from eve3d import mesh as meshing
     from eve3d.io import load_scene
     from eve3d.priors.oracle import oracle_priors
@@ -88,27 +91,37 @@ def test_fusion_allocates_exactly_the_blocks_it_fuses(kind, tmp_path, monkeypatc
 
     scene = load_scene(generate(kind, tmp_path / kind, views=8, width=96, height=72))
     oracle_priors(scene, tmp_path / "depth", preview=False)
-    made, make = [], meshing._grid
+    made, make, count = [], meshing._grid, meshing.count_blocks
 
     def recorded(voxel, blocks):
         made.append((blocks, make(voxel, blocks)))
         return made[-1][1]
 
     monkeypatch.setattr(meshing, "_grid", recorded)
-    settings = MeshSettings(coarsen=5)
+    settings = MeshSettings(coarsen=2)
     exact = meshing.fuse(scene, tmp_path / "depth", settings)
     blocks, grid = made[-1]
     assert grid.hashmap().capacity() == blocks and 0 < grid.hashmap().size() < blocks  # it never grew
-    monkeypatch.setattr(meshing, "block_count", lambda *args: 8 * blocks)
+    monkeypatch.setattr(meshing, "count_blocks", lambda *args: replace(count(*args), most=8 * blocks))
     generous = meshing.fuse(scene, tmp_path / "depth", settings)
     assert made[-1][1].hashmap().size() == grid.hashmap().size()
+    monkeypatch.setattr(meshing, "count_blocks", count)
+    monkeypatch.setattr(meshing, "TILE_BLOCKS", 300)
+    made.clear()
+    tiled = meshing.fuse(scene, tmp_path / "depth", settings)
+    slabs = made[1:]  # (the first: the probe that counts)
+    # a slab is 300 blocks at most unless one layer of blocks (a wall across the axis) has more
+    assert len(slabs) > 10 and max(g.hashmap().size() for _, g in slabs) < grid.hashmap().size() / 3
+    assert all(g.hashmap().capacity() == n for n, g in slabs)  # none grew
     for key in ("vertices", "triangles", "vertex_colors"):
-        assert np.array_equal(np.asarray(getattr(exact, key)), np.asarray(getattr(generous, key))), key
+        for other in (generous, tiled):
+            assert np.array_equal(np.asarray(getattr(exact, key)), np.asarray(getattr(other, key))), key
 
 
 def test_fusion_past_what_open3d_extracts_is_refused_before_fusing(tiny_dataset, tmp_path, monkeypatch):
-    """A grid of more blocks than open3d's mesh extraction handles (it crashes past
-    262,144) stops with an error that names the remedy, before any view is fused."""
+    """Where even a slab of one layer of blocks is more than open3d's mesh extraction
+    handles (it crashes past 262,144 blocks), the fusion stops with an error that names
+    the remedy, before any view is fused."""
     from eve3d import mesh as meshing
     from eve3d.io import load_scene
     from eve3d.priors.oracle import oracle_priors
@@ -120,7 +133,8 @@ def test_fusion_past_what_open3d_extracts_is_refused_before_fusing(tiny_dataset,
     made, make = [], meshing._grid
     monkeypatch.setattr(meshing, "_grid", lambda voxel, blocks: made.append(blocks) or make(voxel, blocks))
     monkeypatch.setattr(meshing, "MAX_BLOCKS", 10)
-    with pytest.raises(Eve3dError, match=r"open3d extracts a mesh from at most 10\. Use a voxel about [\d.]+× as large"):
+    monkeypatch.setattr(meshing, "TILE_BLOCKS", 5)
+    with pytest.raises(Eve3dError, match=r"open3d extracts a mesh from at most 10\. Use a larger voxel"):
         meshing.fuse(scene, tmp_path / "depth", MeshSettings(coarsen=5))
     assert made == [1]  # the probe that counts the blocks, no grid to fuse into
 
