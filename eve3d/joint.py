@@ -94,12 +94,14 @@ class PriorState:
         self.confidence = [state.add_buffer(f"prior_confidence/{i}", c.clone())
                            for i, c in enumerate(priors.confidence)]
         self.learnable = s.priors == "learnable"
-        if self.learnable:  # a view without prior depth starts at the median of the others'
-            typical = float(torch.cat([d[d > 0] for d in priors.depth]).median())
+        self.blank = {i for i, d in enumerate(priors.depth) if not (d > 0).any()}
+        """Views without any prior depth: nobody's LBA neighbour (their D̂ is a constant)."""
+        self.log_depth = []
+        if self.learnable:  # a blank view's D̂ starts at the median of the other views' median depths
+            typical = float(torch.stack([d[d > 0].median() for i, d in enumerate(priors.depth)
+                                         if i not in self.blank]).median()) if self.blank else 1.0
             self.log_depth = [state.add_extra(f"prior_log_depth/{i}", filled_log_depth(d, typical), s.prior_lr)
                               for i, d in enumerate(priors.depth)]
-        else:
-            self.log_depth = []
 
     def depth(self, i: int) -> torch.Tensor:
         """D̂_i (learnable) or D*_i (fixed)."""
@@ -176,7 +178,7 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     if priors.learnable and joint and s.pull_weight and unconfident.any():
         pull = (priors.depth(i) - out.depth.detach()).abs() * unconfident
         t["pull"] = s.pull_weight * pull.sum() / unconfident.sum()
-    neighbours = neighbours[:s.neighbours]
+    neighbours = [n for n in neighbours if n.index not in priors.blank][:s.neighbours]
     if s.lba_weight and neighbours and (joint or priors.learnable):
         if joint:  # the rendered depth and plane against the neighbours' priors
             depth, normal, distance, mask = out.depth, out.normal, out.distance, covered

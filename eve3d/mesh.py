@@ -219,18 +219,31 @@ def slabs(plan: GridPlan, depth_dir: Path) -> tuple[int, list[tuple[int, int]]]:
     return axis, ranges
 
 
-def _welded(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
-    """One open3d mesh of the slabs' (vertices, triangles, colours), the vertices that two
-    slabs share on their seam made one (the same cells give bit-identical vertices)."""
+def _welded(parts: list):
+    """One open3d mesh of the slabs' meshes: a vertex position that two slabs share (their
+    seam: the same cells give bit-identical vertices) made one vertex; any other vertex kept
+    as it is (open3d itself makes several at one position where a TSDF value is exactly 0)."""
     import open3d as o3d
 
-    vertices = np.concatenate([v for v, _, _ in parts])
-    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts[:-1]])
-    triangles = np.concatenate([t + o for (_, t, _), o in zip(parts, offsets)])
-    unique, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(unique),
-                                     o3d.utility.Vector3iVector(inverse.ravel()[triangles]))
-    mesh.vertex_colors = o3d.utility.Vector3dVector(np.concatenate([c for _, _, c in parts])[first])
+    arrays = {key: [np.asarray(getattr(m, key)) for m in parts] for key in ("vertices", "triangles")}
+    vertices = np.concatenate(arrays["vertices"])
+    sizes = [len(v) for v in arrays["vertices"]]
+    slab = np.repeat(np.arange(len(parts)), sizes)
+    _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    lowest, highest = np.full(len(first), len(parts)), np.full(len(first), -1)
+    np.minimum.at(lowest, inverse, slab)
+    np.maximum.at(highest, inverse, slab)
+    shared = lowest[inverse] != highest[inverse]
+    target = np.where(shared, first[inverse], np.arange(len(vertices)))
+    offsets = np.cumsum([0] + sizes[:-1])
+    triangles = np.concatenate([t + o for t, o in zip(arrays["triangles"], offsets)])
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices),
+                                     o3d.utility.Vector3iVector(target[triangles]))
+    for key in ("vertex_colors", "vertex_normals"):
+        if all(len(getattr(m, key)) for m in parts):
+            setattr(mesh, key, o3d.utility.Vector3dVector(np.concatenate([np.asarray(getattr(m, key)) for m in parts])))
+    mesh.remove_unreferenced_vertices()
     return mesh
 
 
@@ -253,7 +266,7 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         held = int(near(plan.blocks).sum())
         seen = [cam for cam in scene.cameras if cam.view_id in plan.reach and
                 plan.reach[cam.view_id][0, axis] <= b and plan.reach[cam.view_id][1, axis] >= a - 1]
-        vbg = _grid(voxel, held + plan.most)
+        vbg = _grid(voxel, held + min(plan.most, held))  # a view adds at most the slab's blocks
         desc = f"TSDF (voxel {voxel:.4g}, {held} blocks" + (f", slab {k + 1}/{len(ranges)})" if len(ranges) > 1 else ")")
         for cam, depth in fused_depths(replace(scene, cameras=seen), depth_dir, s, desc, leave=len(ranges) == 1):
             if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
@@ -279,19 +292,18 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         del vbg  # the grid goes before the mesh is converted (each a few GB at the DESIGN voxel on a large scene)
         piece = extracted.to_legacy()
         del extracted
-        if len(ranges) == 1:
+        if len(ranges) > 1:  # each slab keeps the triangles whose centre lies in its own layers
+            v, t = np.asarray(piece.vertices), np.asarray(piece.triangles)
+            centre = v[t, axis].mean(1) / (voxel * BLOCK_RESOLUTION)
+            keep = (centre >= a if k else True) & (centre < b if k < len(ranges) - 1 else True)
+            piece.remove_triangles_by_mask(~keep)
+            piece.remove_unreferenced_vertices()
+        if len(piece.triangles):
             parts.append(piece)
-            continue
-        v, t = np.asarray(piece.vertices), np.asarray(piece.triangles)
-        # each slab keeps the triangles whose centre lies in its own layers
-        centre = v[t, axis].mean(1) / (voxel * BLOCK_RESOLUTION)
-        keep = (centre >= a if k else True) & (centre < b if k < len(ranges) - 1 else True)
-        parts.append((v, t[keep], np.asarray(piece.vertex_colors)))
-    if len(ranges) > 1 and parts:
-        mesh = _welded(parts)
-        mesh.remove_unreferenced_vertices()
+    if not parts:
+        mesh = o3d.geometry.TriangleMesh()
     else:
-        mesh = parts[0] if parts else o3d.geometry.TriangleMesh()
+        mesh = parts[0] if len(parts) == 1 else _welded(parts)
     fused = len(fused_views)
     region = scene.region(s.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths

@@ -283,9 +283,9 @@ def test_bad_prior_map_is_named_before_training(tiny_scene, tmp_path, noisy_prio
 
 def test_a_view_without_prior_depth_trains_without_prior_terms(tiny_scene, tmp_path, noisy_priors, capsys):
     """A view whose stereo matched nothing (a blank ceiling in a 300-view room) is named in
-    a warning and trains: no L_prior, its D̂ starts at the median prior depth of the other
-    views and L_pull moves it towards the rendered depth. Priors blank in every view stop
-    with the folder named."""
+    a warning and trains: no L_prior, its D̂ starts at the median of the other views'
+    median prior depths (L_pull moves it towards the rendered depth) and it is nobody's LBA
+    neighbour. Priors blank in every view stop with the folder named."""
     import shutil
 
     bad = tmp_path / "priors"
@@ -298,9 +298,10 @@ def test_a_view_without_prior_depth_trains_without_prior_terms(tiny_scene, tmp_p
     warning = capsys.readouterr().err
     assert f"3 of {len(tiny_scene.cameras)} views have no confident prior depth" in warning, warning
     assert warning.rstrip().endswith(", ".join(blank)), warning
-    others = torch.cat([d[d > 0] for d in run.priors.star.depth])
+    typical = torch.stack([d[d > 0].median() for d in run.priors.star.depth[3:]]).median()
     start = _log_depths(run.trainer)
-    assert torch.allclose(start["prior_log_depth/0"], torch.log(others.median()).expand_as(start["prior_log_depth/0"]))
+    assert run.priors.blank == {0, 1, 2}
+    assert torch.allclose(start["prior_log_depth/0"], torch.log(typical).expand_as(start["prior_log_depth/0"]))
     terms = []
     run.trainer.run(lambda step, view, out: terms.append((view.index, set(t := run.loss(step, view, out)))) or t)
     blank_terms = set().union(*(t for i, t in terms if i < 3))

@@ -113,7 +113,7 @@ def test_fusion_allocates_exactly_the_blocks_it_fuses_a_slab_at_a_time(kind, tmp
     # a slab is 300 blocks at most unless one layer of blocks (a wall across the axis) has more
     assert len(slabs) > 10 and max(g.hashmap().size() for _, g in slabs) < grid.hashmap().size() / 3
     assert all(g.hashmap().capacity() == n for n, g in slabs)  # none grew
-    for key in ("vertices", "triangles", "vertex_colors"):
+    for key in ("vertices", "triangles", "vertex_colors", "vertex_normals"):
         for other in (generous, tiled):
             assert np.array_equal(np.asarray(getattr(exact, key)), np.asarray(getattr(other, key))), key
 

@@ -57,8 +57,8 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
     to its training camera's size, with normals from the resampled depth (finite
     differences over ±``normal_span`` pixels). A missing or mis-sized map is an error naming
     the file; so are priors without a confident pixel in any view. A view without one (a
-    blank wall or ceiling: the stereo matches nothing) is named in a warning and trains
-    without prior terms."""
+    blank wall or ceiling: the stereo matches nothing) is named in a warning; it trains
+    without prior terms unless the multi-view check confirms some of its depths."""
     from eve3d.losses import depth_to_normal
     from eve3d.render.projection import CameraTensors
 
@@ -94,7 +94,8 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
         from eve3d.photos import warn
 
         warn(f"{folder}: {len(blank)} of {len(training)} views have no confident prior depth (nothing the "
-             f"stereo could match: a blank wall, no overlap) and train without prior terms: "
+             f"stereo could match: a blank wall, no overlap); they train without prior terms, but where the "
+             f"multi-view check confirms a depth they have: "
              f"{', '.join(blank[:10])}{', …' if len(blank) > 10 else ''}")
     on = lambda maps: [m.to(device) for m in maps]  # noqa: E731
     return Priors(on(depths), on(confs), on(normals), digest.hexdigest()[:16])
