@@ -304,6 +304,7 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         mesh = o3d.geometry.TriangleMesh()
     else:
         mesh = parts[0] if len(parts) == 1 else _welded(parts)
+        parts.clear()  # the slabs' meshes go before the mesh is reordered (a copy of it)
     fused = len(fused_views)
     region = scene.region(s.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths
@@ -343,11 +344,30 @@ def canonical_order(mesh):
     return out
 
 
+def triangle_clusters(triangles: np.ndarray, vertex_count: int) -> np.ndarray:
+    """The connected set of each triangle, triangles joined through a shared edge (open3d's
+    ``cluster_connected_triangles``, which took 4 GB for a mesh of 11 million triangles;
+    this holds the edges' keys and their order)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    t = np.asarray(triangles, dtype=np.int64)
+    keys = np.concatenate([np.minimum(t[:, i], t[:, j]) * vertex_count + np.maximum(t[:, i], t[:, j])
+                           for i, j in ((0, 1), (1, 2), (2, 0))])  # edge k of triangle n at k·N + n
+    order = np.argsort(keys, kind="stable")
+    same = np.flatnonzero(keys[order[1:]] == keys[order[:-1]])  # consecutive copies of an edge
+    del keys
+    a, b = order[same] % len(t), order[same + 1] % len(t)
+    del order, same
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(len(t), len(t)))
+    return connected_components(graph, directed=False)[1]
+
+
 def keep_large_clusters(mesh, min_fraction: float):
     """Keep the largest connected set of triangles and those with at least ``min_fraction``
     of its triangles (drops floaters)."""
-    labels, counts, _ = mesh.cluster_connected_triangles()
-    labels, counts = np.asarray(labels), np.asarray(counts)
+    labels = triangle_clusters(np.asarray(mesh.triangles), len(mesh.vertices))
+    counts = np.bincount(labels)
     mesh.remove_triangles_by_mask(counts[labels] < min_fraction * counts.max())
     mesh.remove_unreferenced_vertices()
     return mesh

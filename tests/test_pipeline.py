@@ -206,3 +206,27 @@ def test_killed_training_reruns_to_the_same_result(tmp_path):
     scores = [json.loads(x.metrics("tiny", "pgsr").read_text()) for x in (straight, layout)]
     for key in ("accuracy", "completeness", "precision", "recall", "fscore"):
         assert scores[1][key] == pytest.approx(scores[0][key], rel=1e-3, abs=1e-5), key
+
+
+def test_triangle_clusters_are_open3ds():
+    """The clusters that drop floaters join triangles through shared edges, as open3d's
+    ``cluster_connected_triangles`` does: the same cluster sizes per triangle on a sphere with
+    floaters, two triangles touching only at a vertex (separate) and an edge that three
+    triangles share (one cluster)."""
+    import open3d as o3d
+
+    from eve3d.mesh import triangle_clusters
+
+    parts = [o3d.geometry.TriangleMesh.create_sphere(1.0, 20)]
+    parts += [o3d.geometry.TriangleMesh.create_sphere(0.05, 4).translate((2 + k, 0, 0)) for k in range(3)]
+    v = [np.asarray(p.vertices) for p in parts]
+    t = [np.asarray(p.triangles) for p in parts]
+    v.append(np.array([[5, 0, 0], [6, 0, 0], [5, 1, 0], [4, -1, 0], [4, 0, 1], [5, 0, 1], [6, 1, 1]], float))
+    t.append(np.array([[0, 1, 2], [0, 3, 4], [0, 1, 5], [0, 1, 6]]))  # a bow tie at vertex 0; edge 0-1 thrice
+    offsets = np.cumsum([0] + [len(x) for x in v[:-1]])
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.concatenate(v)),
+                                     o3d.utility.Vector3iVector(np.concatenate([x + o for x, o in zip(t, offsets)])))
+    labels, counts, _ = mesh.cluster_connected_triangles()
+    ours = triangle_clusters(np.asarray(mesh.triangles), len(mesh.vertices))
+    assert np.array_equal(np.asarray(counts)[np.asarray(labels)], np.bincount(ours)[ours])
+    assert len(np.unique(ours)) == len(np.asarray(counts)) == 6

@@ -47,10 +47,12 @@ def mesh_distances(mesh, points: np.ndarray, chunk: int | None = None) -> np.nda
 
     # open3d works in float32: move the mesh's centre to the origin first, so that large
     # (e.g. georeferenced) coordinates keep their precision.
+    # Only the positions and triangles go in (a copy of the whole mesh, colours and normals
+    # too, was 1.5 GB of a 26-million-triangle mesh).
     centre = np.asarray(mesh.get_axis_aligned_bounding_box().get_center())
-    centred = o3d.geometry.TriangleMesh(mesh).translate(-centre)
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(centred))
+    scene.add_triangles(o3d.core.Tensor((np.asarray(mesh.vertices) - centre).astype(np.float32)),
+                        o3d.core.Tensor(np.asarray(mesh.triangles).astype(np.uint32)))
     out = np.empty(len(points))
     for part in chunks(len(points), chunk):
         out[part] = scene.compute_distance(o3d.core.Tensor(np.ascontiguousarray(points[part] - centre,
