@@ -586,6 +586,18 @@ class MatchCheck(Checked):
     """Neighbours that must agree (a view with fewer neighbours skips the check)."""
     mv_neighbours: int = setting(4, ge=1)
     """Best neighbours tried (``eve3d.neighbours``)."""
+    min_alpha: float = setting(0.5, ge=0, le=1)
+    """Confident only where the pretrained model renders a surface: its alpha in the left
+    view (``stereo/alpha/``) is at least this over the whole ``edge_window`` around the
+    pixel (0 = off). Where it renders nothing (an empty background, the sky) the right view
+    is empty too, and whatever the matcher finds there is no surface."""
+    edge_window: int = setting(5, ge=0)
+    """Not confident within this window (px, about the matcher's: ``block_size`` for
+    ``sgbm``) of a disparity jump (``jump`` px between adjacent pixels, or a matched pixel
+    beside an unmatched one): a window that straddles a silhouette matches the foreground's
+    texture and gives the background beside it the foreground's disparity (0 = off)."""
+    jump: float = setting(1.0, gt=0)
+    """Disparity difference between adjacent pixels that counts as a jump (px)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
