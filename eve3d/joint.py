@@ -25,8 +25,8 @@ from tqdm import tqdm
 from eve3d.fileio import atomic_dir, atomic_path, write_image
 from eve3d.gaussians import GaussianModel
 from eve3d.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
-from eve3d.losses import (CameraStack, depth_normal_loss, depth_to_normal, depth_to_points, forward_backward_error,
-                          geometric_loss, ncc_loss, rgb_loss)
+from eve3d.losses import (CameraStack, depth_confirmation, depth_normal_loss, depth_to_normal, depth_to_points,
+                          forward_backward_error, geometric_loss, ncc_loss, rgb_loss)
 from eve3d.maps import save_maps
 from eve3d.methods import uses_priors
 from eve3d.neighbours import select_neighbours
@@ -107,17 +107,32 @@ class PriorState:
         """D̂_i (learnable) or D*_i (fixed)."""
         return torch.exp(self.log_depth[i]) if self.learnable else self.star.depth[i]
 
+    def trusted(self, i: int) -> torch.Tensor:
+        """D_prior,i where M^c_i trusts it, 0 elsewhere: how a neighbour's prior enters the
+        LBA, so that a pixel the stereo never measured, or the check refuted, confirms nothing."""
+        return torch.where(self.confidence[i], self.depth(i), torch.zeros_like(self.depth(i)))
+
     @torch.no_grad()
-    def update_confidence(self, i: int, neighbours: list[View], checks: torch.Tensor | None = None) -> None:
-        """M^c_i ← the stereo gave a depth there, and D_prior,i passes the forward–backward
-        check (φ < ``mv_threshold``) against at least ``consistent_views`` neighbours' priors.
-        ``checks``: those pass masks (K, H, W), when the LBA has just computed them with D_prior,i."""
-        if checks is None:
-            phi, defined = forward_backward_error(self.depth(i), [self.depth(n.index) for n in neighbours],
-                                                  self.views[i].cam, CameraStack([n.cam for n in neighbours]))
-            checks = defined & (phi < self.s.mv_threshold)
-        passed = checks.sum(0)
-        self.confidence[i].copy_((self.star.depth[i] > 0) & (passed >= self.s.consistent_views))
+    def update_confidence(self, i: int, neighbours: list[View]) -> None:
+        """M^c_i ← the stereo's own confidence in D*_i (never more), where D_prior,i is
+        confirmed by at least ``consistent_views`` neighbours' priors on pixels the stereo
+        measured there (within ``confirm_depth``) and by the photos of at least
+        ``confirm_photos`` neighbours (NCC ≥ ``confirm_ncc``; textureless windows pass). The
+        neighbours count by what their stereo measured, not by their own M^c: a check against
+        checked pixels would shrink from view to view, whatever the priors' quality."""
+        s = self.s
+        if not neighbours:
+            self.confidence[i].zero_()
+            return
+        view = self.views[i]
+        agrees, ncc, flat = depth_confirmation(
+            self.depth(i), view.grey, view.cam, CameraStack([n.cam for n in neighbours]),
+            [self.depth(n.index) for n in neighbours], [self.star.confidence[n.index] for n in neighbours],
+            [n.grey for n in neighbours], s.confirm_depth)
+        confirmed = agrees.sum(0) >= s.consistent_views
+        if s.confirm_photos:
+            confirmed &= flat | ((ncc >= s.confirm_ncc).sum(0) >= s.confirm_photos)
+        self.confidence[i].copy_(self.star.confidence[i] & confirmed)
 
 
 def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None,
@@ -165,6 +180,9 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     Gaussians and every D̂ involved. The LBA's check updates M^c."""
     t: dict[str, torch.Tensor] = {}
     i, joint = view.index, step >= s.joint_from
+    neighbours = [n for n in neighbours if n.index not in priors.blank][:s.neighbours]
+    if s.lba_weight:  # the multi-view check is the LBA's: without it M^c stays the stereo's
+        priors.update_confidence(i, neighbours)
     confident = priors.confidence[i] & covered
     target = priors.depth(i) if joint else priors.star.depth[i]
     if s.prior_weight and confident.any():
@@ -178,20 +196,17 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     if priors.learnable and joint and s.pull_weight and unconfident.any():
         pull = (priors.depth(i) - out.depth.detach()).abs() * unconfident
         t["pull"] = s.pull_weight * pull.sum() / unconfident.sum()
-    neighbours = [n for n in neighbours if n.index not in priors.blank][:s.neighbours]
     if s.lba_weight and neighbours and (joint or priors.learnable):
         if joint:  # the rendered depth and plane against the neighbours' priors
             depth, normal, distance, mask = out.depth, out.normal, out.distance, covered
-        else:  # the priors among themselves
+        else:  # the confident priors among themselves
             depth = priors.depth(i)
             normal, distance = prior_plane(depth, view, s.prior_normal_span)
-            mask = (priors.star.depth[i] > 0) & (normal.norm(dim=-1) > 0)
-        geo, ncc, checks = multiview_terms(view, neighbours, depth, normal, distance,
-                                           [priors.depth(n.index) for n in neighbours], mask, s, generator)
+            mask = priors.confidence[i] & (normal.norm(dim=-1) > 0)
+        geo, ncc, _ = multiview_terms(view, neighbours, depth, normal, distance,
+                                      [priors.trusted(n.index) for n in neighbours], mask, s, generator)
         total = geo.sum() + (0.0 if ncc is None else (ncc[0] / ncc[1]).sum())
         t["lba"] = s.lba_weight * total / len(neighbours)
-        # before T_joint the reference is the prior itself: its checks are the ones M^c needs
-        priors.update_confidence(i, neighbours, None if joint else checks)
     return t
 
 

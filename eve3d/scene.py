@@ -177,6 +177,7 @@ class Scene:
         if box is None or not scale:
             return None
         centre, half = (box[0] + box[1]) / 2, (box[1] - box[0]) / 2 * scale
+        half = np.maximum(half, 0.1 * half.max())  # points on one plane (a wall, a facade) span no depth
         return centre - half, centre + half
 
     def camera(self, view_id: str) -> Camera:

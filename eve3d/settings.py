@@ -496,7 +496,18 @@ class JointSettings(TrainSettings):
     prior_lr: float = setting(1e-4, ge=0)
     """Adam step of log D̂ (a relative change of depth: the same for every scene scale)."""
     consistent_views: int = setting(2, ge=1)
-    """M^c update: confident where the prior passes the geometric check in this many neighbours."""
+    """M^c: a prior depth counts where at least this many neighbours confirm it geometrically
+    (``confirm_depth``), besides the stereo's own confidence and the photos (``confirm_ncc``)."""
+    confirm_depth: float = setting(0.01, gt=0)
+    """M^c: a neighbour confirms a prior depth where the point lands on its *confident* prior
+    pixels within this relative depth difference (a tolerance that stays the same at every
+    training size, where PGSR's 1 px does not)."""
+    confirm_ncc: float = setting(0.5, ge=-1, le=1)
+    """M^c: the real photos confirm a prior depth where the NCC (7×7) between the view's photo
+    and at least ``confirm_photos`` neighbours' photos warped by that depth reaches this;
+    a window without texture can neither confirm nor refute and passes."""
+    confirm_photos: int = setting(1, ge=0)
+    """M^c: neighbours whose photos must agree (``confirm_ncc``); 0 = no photometric check."""
 
 
 # --------------------------------------------------------------------------- stereo
