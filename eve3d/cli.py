@@ -197,7 +197,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
 
         acc = depth_accuracy(Path(a.depth), Path(a.exact_depth), min_confidence=min_confidence)
         metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
-                        "depth_density": acc["density"], "depth_maps": str(a.depth)})
+                        "depth_density": acc["density"], "depth_on_empty": acc["on_empty"], "depth_maps": str(a.depth)})
     if "tau" in metrics:
         print(f"tau = {metrics['tau']:.5g} ({metrics['tau_rule']})")
     metrics.update({"scene": a.scene_name, "method": a.method} if a.scene_name else {})
