@@ -77,6 +77,8 @@ def stereo_scene(tmp_path: Path, disparity: int, baseline: float = 0.5):
     cv2.imwrite(str(tmp_path / "v.png"), left[..., ::-1])
     (tmp_path / "stereo/right").mkdir(parents=True)
     cv2.imwrite(str(tmp_path / "stereo/right/v.png"), right[..., ::-1])
+    (tmp_path / "stereo/alpha").mkdir()
+    cv2.imwrite(str(tmp_path / "stereo/alpha/v.png"), np.full(left.shape[:2], 255, np.uint8))  # a model covering it all
     K = np.array([[100.0, 0, 64], [0, 100, 48], [0, 0, 1]])
     scene = Scene(tmp_path, [Camera("v.png", 128, 96, K, np.eye(3), np.zeros(3), image_path=tmp_path / "v.png")])
     pairs = {"views": {"v": {"baseline": baseline, "min_disparity": 0, "max_disparity": 3 * disparity, "margin": 0}}}
