@@ -52,7 +52,7 @@ def _cmd_synth(a: argparse.Namespace) -> None:
 
     s = _settings(a, SyntheticSettings, "synthetic")
     generate(a.kind, Path(a.out), views=s.views, width=s.width, height=s.height, seed=s.seed,
-             images_only=a.images_only, arc=s.arc)
+             images_only=a.images_only, arc=s.arc, surface_samples=s.surface_samples)
     print(f"wrote {a.out}")
 
 

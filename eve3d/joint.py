@@ -183,7 +183,8 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     consistent initialisation). From T_joint: L_prior towards D̂_i, L_pull of D̂_i towards
     the rendered depth where M^c is not confident, and the LBA of the rendered depth
     against the neighbours' D̂_n (no neighbour is rendered); gradients reach the
-    Gaussians and every D̂ involved. The LBA's check updates M^c."""
+    Gaussians and every D̂ involved. Each visit first re-checks M^c_i
+    (``PriorState.update_confidence``) when the LBA is on."""
     t: dict[str, torch.Tensor] = {}
     i, joint = view.index, step >= s.joint_from
     neighbours = [n for n in neighbours if n.index not in priors.blank][:s.neighbours]

@@ -250,6 +250,10 @@ class SyntheticSettings(Checked):
     """Seed of the texture noise and the cameras' random placement."""
     arc: float = setting(360.0, gt=0, le=360)
     """Azimuth range of the cameras in degrees (a DTU-like front arc for object scenes)."""
+    surface_samples: int = setting(0, ge=0)
+    """0: the sparse points are SIFT features of the photos triangulated with the known poses,
+    as a user's SfM gives them. > 0: that many exact surface samples instead, for scenes too
+    small for SIFT (the tests' tiny ones); never a benchmark's input."""
 
 
 @dataclass

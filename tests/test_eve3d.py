@@ -161,7 +161,7 @@ def noisy_priors(tiny_scene, tmp_path_factory) -> Path:
 
 
 def _eve3d(**kw) -> JointSettings:
-    base = {**methods()["eve3d"].settings, "init_prior_points": 3000}
+    base = {**methods()["eve3d-paper"].settings, "init_prior_points": 3000}  # every Eve3D part on
     densify = joint_settings().densify
     return joint_settings(**{**base, **kw, "method": "eve3d"}, densify=replace(densify, refine_stop=0))
 
