@@ -224,13 +224,14 @@ def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
     """A table of :func:`prior_accuracy` rows, one label each."""
     width = max(len(title), *map(len, labels))
     lines = [f"{title:<{width}} {'median signed':>13} {'median rel. error':>17} {'density':>8} {'off >5 %':>9} "
-             f"{'off >10 %':>9}"]
+             f"{'off >10 %':>9} {'on empty':>9}"]
     for label, r in zip(labels, rows):
+        empty = "-" if r.get("on_empty") is None else f"{r['on_empty'] * 100:.2f} %"
         if r["median_signed_error"] is None:  # no confident pixel with an exact depth
-            lines.append(f"{label:<{width}} {'-':>13} {'-':>17} {r['density']:8.3f}")
+            lines.append(f"{label:<{width}} {'-':>13} {'-':>17} {r['density']:8.3f} {'-':>9} {'-':>9} {empty:>9}")
             continue
         lines.append(f"{label:<{width}} {r['median_signed_error'] * 100:+11.2f} % {r['median_rel_error'] * 100:15.2f} % "
-                     f"{r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % {r['wrong_10'] * 100:7.1f} %")
+                     f"{r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % {r['wrong_10'] * 100:7.1f} % {empty:>9}")
     return lines
 
 
@@ -377,6 +378,7 @@ def format_methods_report(report: dict) -> str:
         lines.append(f"  {scene}: " + ", ".join(f"{k} {cell(v, '.0f')} s" for k, v in stages.items()))
     if report["priors"]:
         lines += ["", "depth against the exact depth, on confident pixels (priors: M^c; rendered D: alpha ≥ 0.5);",
+                  "on empty: the share of the pixels without a surface that have a confident depth (floaters);",
                   "signed: positive = too far"]
         lines += prior_lines("scene / priors", [f"{r['data']} / {r['priors']}" for r in report["priors"]],
                              report["priors"])
@@ -769,7 +771,7 @@ def bench_training(stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, war
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         scene_dir = generate("object", Path(tmp) / "object", views=synthetic.views, width=synthetic.width,
-                             height=synthetic.height, seed=synthetic.seed, points=gaussians)
+                             height=synthetic.height, seed=synthetic.seed, surface_samples=gaussians)
         priors = None
         if any(stage != "pretrain" and uses_priors(asdict(s)) for stage, s in settings.items()):
             priors = Path(tmp) / "priors"
@@ -935,7 +937,8 @@ def generate_with_depth(args: tuple) -> float:
     from eve3d.synth import generate
 
     kind, data, depth, views, (width, height), divisor = args
-    generate(kind, Path(data), views=views, width=width // divisor, height=height // divisor, supersample=1)
+    generate(kind, Path(data), views=views, width=width // divisor, height=height // divisor, supersample=1,
+             matcher="sequential")  # exhaustive matching of hundreds of views would dwarf the stages timed
     scene = load_scene(Path(data))
     oracle_priors(replace(scene, cameras=[cam.scaled(width / cam.width) for cam in scene.cameras]), Path(depth),
                   preview=False)

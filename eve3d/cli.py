@@ -52,7 +52,7 @@ def _cmd_synth(a: argparse.Namespace) -> None:
 
     s = _settings(a, SyntheticSettings, "synthetic")
     generate(a.kind, Path(a.out), views=s.views, width=s.width, height=s.height, seed=s.seed,
-             images_only=a.images_only, arc=s.arc)
+             images_only=a.images_only, arc=s.arc, surface_samples=s.surface_samples)
     print(f"wrote {a.out}")
 
 
@@ -197,7 +197,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
 
         acc = depth_accuracy(Path(a.depth), Path(a.exact_depth), min_confidence=min_confidence)
         metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
-                        "depth_density": acc["density"], "depth_maps": str(a.depth)})
+                        "depth_density": acc["density"], "depth_on_empty": acc["on_empty"], "depth_maps": str(a.depth)})
     if "tau" in metrics:
         print(f"tau = {metrics['tau']:.5g} ({metrics['tau_rule']})")
     metrics.update({"scene": a.scene_name, "method": a.method} if a.scene_name else {})

@@ -25,8 +25,8 @@ from tqdm import tqdm
 from eve3d.fileio import atomic_dir, atomic_path, write_image
 from eve3d.gaussians import GaussianModel
 from eve3d.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
-from eve3d.losses import (CameraStack, depth_normal_loss, depth_to_normal, depth_to_points, forward_backward_error,
-                          geometric_loss, ncc_loss, rgb_loss)
+from eve3d.losses import (CameraStack, depth_confirmation, depth_normal_loss, depth_to_normal, depth_to_points,
+                          forward_backward_error, geometric_loss, ncc_loss, rgb_loss)
 from eve3d.maps import save_maps
 from eve3d.methods import uses_priors
 from eve3d.neighbours import select_neighbours
@@ -43,7 +43,7 @@ from eve3d.views import View, Views
 
 def multiview_terms(ref: View, nbrs: list[View], depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,
                     nbr_depths: list[torch.Tensor], mask: torch.Tensor, s: JointSettings, generator: torch.Generator,
-                    with_ncc: bool = True
+                    with_ncc: bool = True, ncc_on: torch.Tensor | None = None
                     ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None, torch.Tensor]:
     """PGSR's multi-view terms of one reference against K neighbours at once, shared by
     PGSR's loss (one neighbour, its depth rendered) and Eve3D's LBA (K neighbours, their
@@ -54,14 +54,17 @@ def multiview_terms(ref: View, nbrs: list[View], depth: torch.Tensor, normal: to
     warped by the plane-induced homography at ``ncc_pixels`` of those pixels drawn at random,
     as the sum of its exp(−φ)-weighted values and the count of pixels where it is defined
     (None when no pixel is drawn); and (K, H, W) the pixels whose round trip is defined and
-    closes within ``mv_threshold`` (whatever ``mask``)."""
+    closes within ``mv_threshold`` (whatever ``mask``). ``ncc_on`` (H, W): draw the NCC's
+    pixels from these instead, whatever the geometric check says (a pixel that fails it
+    weighs exp(−``mv_threshold``), the least a passing one weighs)."""
     cams = CameraStack([n.cam for n in nbrs])
     phi, defined = forward_backward_error(depth, nbr_depths, ref.cam, cams)
     geo, valid = geometric_loss(phi, defined & mask, s.mv_threshold)
     ncc_term = None
     if with_ncc:  # (sum, count) apart: PGSR scales the sum before dividing
+        pool = valid if ncc_on is None else ncc_on.expand_as(valid)
         picks = [idx[torch.randperm(len(idx), generator=generator)[:s.ncc_pixels].to(idx.device)]
-                 for idx in (v.flatten().nonzero().squeeze(1) for v in valid)]
+                 for idx in (v.flatten().nonzero().squeeze(1) for v in pool)]
         drawn = max(len(p) for p in picks)
         if drawn:  # each neighbour's draw, padded to the longest with pixel 0 (not counted)
             pick = torch.zeros(len(nbrs), drawn, dtype=torch.long, device=depth.device)
@@ -72,7 +75,10 @@ def multiview_terms(ref: View, nbrs: list[View], depth: torch.Tensor, normal: to
             ncc, ok = ncc_loss(ref.grey, [n.grey for n in nbrs], ref.cam, cams, normal, distance, pixels,
                                s.ncc_patch)
             ok = ok & counted
-            w = torch.exp(-phi.flatten(1).gather(1, pick)).detach() * ok
+            phi_drawn = phi.flatten(1).gather(1, pick)
+            if ncc_on is not None:
+                phi_drawn = torch.where(valid.flatten(1).gather(1, pick), phi_drawn, s.mv_threshold)
+            w = torch.exp(-phi_drawn).detach() * ok
             ncc_term = (ncc * w).sum(-1), ok.sum(-1).clamp_min(1)
     return geo, ncc_term, defined & (phi < s.mv_threshold)
 
@@ -107,17 +113,32 @@ class PriorState:
         """D̂_i (learnable) or D*_i (fixed)."""
         return torch.exp(self.log_depth[i]) if self.learnable else self.star.depth[i]
 
+    def trusted(self, i: int) -> torch.Tensor:
+        """D_prior,i where M^c_i trusts it, 0 elsewhere: how a neighbour's prior enters the
+        LBA, so that a pixel the stereo never measured, or the check refuted, confirms nothing."""
+        return torch.where(self.confidence[i], self.depth(i), torch.zeros_like(self.depth(i)))
+
     @torch.no_grad()
-    def update_confidence(self, i: int, neighbours: list[View], checks: torch.Tensor | None = None) -> None:
-        """M^c_i ← the stereo gave a depth there, and D_prior,i passes the forward–backward
-        check (φ < ``mv_threshold``) against at least ``consistent_views`` neighbours' priors.
-        ``checks``: those pass masks (K, H, W), when the LBA has just computed them with D_prior,i."""
-        if checks is None:
-            phi, defined = forward_backward_error(self.depth(i), [self.depth(n.index) for n in neighbours],
-                                                  self.views[i].cam, CameraStack([n.cam for n in neighbours]))
-            checks = defined & (phi < self.s.mv_threshold)
-        passed = checks.sum(0)
-        self.confidence[i].copy_((self.star.depth[i] > 0) & (passed >= self.s.consistent_views))
+    def update_confidence(self, i: int, neighbours: list[View]) -> None:
+        """M^c_i ← the stereo's own confidence in D*_i (never more), where D_prior,i is
+        confirmed by at least ``consistent_views`` neighbours' priors on pixels the stereo
+        measured there (within ``confirm_depth``) and by the photos of at least
+        ``confirm_photos`` neighbours (NCC ≥ ``confirm_ncc``; textureless windows pass). The
+        neighbours count by what their stereo measured, not by their own M^c: a check against
+        checked pixels would shrink from view to view, whatever the priors' quality."""
+        s = self.s
+        if not neighbours:
+            self.confidence[i].zero_()
+            return
+        view = self.views[i]
+        agrees, ncc, flat = depth_confirmation(
+            self.depth(i), view.grey, view.cam, CameraStack([n.cam for n in neighbours]),
+            [self.depth(n.index) for n in neighbours], [self.star.confidence[n.index] for n in neighbours],
+            [n.grey for n in neighbours], s.confirm_depth)
+        confirmed = agrees.sum(0) >= s.consistent_views
+        if s.confirm_photos:
+            confirmed &= flat | ((ncc >= s.confirm_ncc).sum(0) >= s.confirm_photos)
+        self.confidence[i].copy_(self.star.confidence[i] & confirmed)
 
 
 def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None,
@@ -162,9 +183,13 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     consistent initialisation). From T_joint: L_prior towards D̂_i, L_pull of D̂_i towards
     the rendered depth where M^c is not confident, and the LBA of the rendered depth
     against the neighbours' D̂_n (no neighbour is rendered); gradients reach the
-    Gaussians and every D̂ involved. The LBA's check updates M^c."""
+    Gaussians and every D̂ involved. Each visit first re-checks M^c_i
+    (``PriorState.update_confidence``) when the LBA is on."""
     t: dict[str, torch.Tensor] = {}
     i, joint = view.index, step >= s.joint_from
+    neighbours = [n for n in neighbours if n.index not in priors.blank][:s.neighbours]
+    if s.lba_weight:  # the multi-view check is the LBA's: without it M^c stays the stereo's
+        priors.update_confidence(i, neighbours)
     confident = priors.confidence[i] & covered
     target = priors.depth(i) if joint else priors.star.depth[i]
     if s.prior_weight and confident.any():
@@ -178,20 +203,18 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     if priors.learnable and joint and s.pull_weight and unconfident.any():
         pull = (priors.depth(i) - out.depth.detach()).abs() * unconfident
         t["pull"] = s.pull_weight * pull.sum() / unconfident.sum()
-    neighbours = [n for n in neighbours if n.index not in priors.blank][:s.neighbours]
     if s.lba_weight and neighbours and (joint or priors.learnable):
         if joint:  # the rendered depth and plane against the neighbours' priors
             depth, normal, distance, mask = out.depth, out.normal, out.distance, covered
-        else:  # the priors among themselves
+        else:  # the confident priors among themselves
             depth = priors.depth(i)
             normal, distance = prior_plane(depth, view, s.prior_normal_span)
-            mask = (priors.star.depth[i] > 0) & (normal.norm(dim=-1) > 0)
-        geo, ncc, checks = multiview_terms(view, neighbours, depth, normal, distance,
-                                           [priors.depth(n.index) for n in neighbours], mask, s, generator)
+            mask = priors.confidence[i] & (normal.norm(dim=-1) > 0)
+        geo, ncc, _ = multiview_terms(view, neighbours, depth, normal, distance,
+                                      [priors.trusted(n.index) for n in neighbours], mask, s, generator,
+                                      ncc_on=covered if joint and s.lba_ncc == "covered" else None)
         total = geo.sum() + (0.0 if ncc is None else (ncc[0] / ncc[1]).sum())
         t["lba"] = s.lba_weight * total / len(neighbours)
-        # before T_joint the reference is the prior itself: its checks are the ones M^c needs
-        priors.update_confidence(i, neighbours, None if joint else checks)
     return t
 
 

@@ -276,6 +276,46 @@ class _RoundTrip(torch.autograd.Function):
         return grad_ref, grad_nbrs, None, None, None, None
 
 
+FLAT_STD = 0.5 / 255
+"""A grey-level window whose standard deviation is below this (half an 8-bit level) has no
+texture: a photometric check can neither confirm nor refute a depth there."""
+
+
+@torch.no_grad()
+def depth_confirmation(depth: torch.Tensor, ref_grey: torch.Tensor, ref: CameraTensors, nbrs: CameraStack,
+                       nbr_depths: Sequence[torch.Tensor], nbr_confident: Sequence[torch.Tensor],
+                       nbr_greys: Sequence[torch.Tensor], tolerance: float, window: int = 7
+                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What K neighbours say of a reference depth map ``depth`` (H, W): every pixel is
+    back-projected and projected into neighbour k. Returns (K, H, W) ``agrees``: it lands
+    inside k's image, on pixels that are all confident there (every bilinear tap of
+    ``nbr_confident[k]``), and its depth in k's frame is within ``tolerance`` (relative) of
+    ``nbr_depths[k]``; (K, H, W) ``ncc``: the NCC over ``window``² pixels between the
+    reference grey image (H, W, 1) and k's grey image sampled where each pixel lands (−1
+    where it falls outside k's image or behind it); and (H, W) ``flat``: the reference
+    window has no texture (std below ``FLAT_STD``), so the NCC says nothing there.
+
+    A tolerance in relative depth means the same at every image size, where a pixel
+    tolerance loosens as the images shrink and the baselines narrow."""
+    R, t = relative_poses(ref, nbrs)
+    points = depth_to_points(depth, ref).reshape(1, -1, 3) @ R.transpose(1, 2) + t[:, None]  # (K, HW, 3)
+    uv, z = nbrs.project(points)
+    shape = (len(nbrs), *depth.shape)
+    seen = ((depth > 0).reshape(1, -1) & (z > 0) & nbrs.inside(uv)).reshape(shape)
+    sampled = _sample([torch.stack([d, c.to(d.dtype), g[..., 0]], -1) for d, c, g in
+                       zip(nbr_depths, nbr_confident, nbr_greys)], uv).reshape(*shape, 3)
+    theirs, confident, grey = sampled.unbind(-1)
+    agrees = seen & (confident >= 1 - 1e-6) & ((z.reshape(shape) - theirs).abs() <= tolerance * theirs)
+    box = lambda x: F.avg_pool2d(x[:, None], window, 1, window // 2, count_include_pad=False)[:, 0]  # noqa: E731
+    a, b = ref_grey[..., 0][None], grey
+    mean_a, mean_b = box(a), box(b)
+    var_a = (box(a * a) - mean_a ** 2).clamp_min(0)
+    var_b = (box(b * b) - mean_b ** 2).clamp_min(0)
+    ncc = (box(a * b) - mean_a * mean_b) / torch.sqrt(var_a * var_b + 1e-12)
+    ncc = torch.where(seen & (var_b > FLAT_STD ** 2), ncc, torch.full_like(ncc, -1.0))
+    return agrees, ncc, var_a[0] < FLAT_STD ** 2
+
+
 def _project(points: torch.Tensor, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
     z = points[..., 2]
     zs = torch.where(z.abs() > 1e-8, z, torch.full_like(z, 1e-8))

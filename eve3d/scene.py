@@ -156,17 +156,29 @@ class Scene:
         95% of the sparse points around their median."""
         if "object_radius" in self.extras:
             return float(self.extras["object_radius"])
-        if self.points is not None and len(self.points) >= 10:
-            d = np.linalg.norm(self.points - np.median(self.points, axis=0), axis=1)
+        points = self.reliable_points()
+        if points is not None and len(points) >= 10:
+            d = np.linalg.norm(points - np.median(points, axis=0), axis=1)
             return float(np.quantile(d, 0.95))
         return self.radius / 3.0
 
+    def reliable_points(self, views: int = 3, enough: int = 50) -> np.ndarray | None:
+        """The sparse points seen in at least ``views`` images when there are ``enough`` of
+        them, else all: SfM's two-view points are its least reliable (on the generated vase,
+        triangulated: the 95 % radius of all points 2.7, of those in ≥ 3 views 1.5, of the
+        object 1.5)."""
+        if self.points is None or self.point_views is None:
+            return self.points
+        seen = np.array([len(v) >= views for v in self.point_views], bool)
+        return self.points[seen] if seen.sum() >= enough else self.points
+
     def sparse_box(self, low: float = 5.0, high: float = 95.0) -> tuple[np.ndarray, np.ndarray] | None:
-        """The box of the sparse points' ``low``–``high`` percentiles per axis (robust to far
-        background points and outliers); None without at least 10 points."""
-        if self.points is None or len(self.points) < 10:
+        """The box of the :meth:`reliable_points`' ``low``–``high`` percentiles per axis
+        (robust to far background points and outliers); None without at least 10 points."""
+        points = self.reliable_points()
+        if points is None or len(points) < 10:
             return None
-        lo, hi = np.percentile(self.points, [low, high], axis=0)
+        lo, hi = np.percentile(points, [low, high], axis=0)
         return lo, hi
 
     def region(self, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -177,6 +189,7 @@ class Scene:
         if box is None or not scale:
             return None
         centre, half = (box[0] + box[1]) / 2, (box[1] - box[0]) / 2 * scale
+        half = np.maximum(half, 0.1 * half.max())  # points on one plane (a wall, a facade) span no depth
         return centre - half, centre + half
 
     def camera(self, view_id: str) -> Camera:

@@ -250,6 +250,10 @@ class SyntheticSettings(Checked):
     """Seed of the texture noise and the cameras' random placement."""
     arc: float = setting(360.0, gt=0, le=360)
     """Azimuth range of the cameras in degrees (a DTU-like front arc for object scenes)."""
+    surface_samples: int = setting(0, ge=0)
+    """0: the sparse points are SIFT features of the photos triangulated with the known poses,
+    as a user's SfM gives them. > 0: that many exact surface samples instead, for scenes too
+    small for SIFT (the tests' tiny ones); never a benchmark's input."""
 
 
 @dataclass
@@ -493,10 +497,25 @@ class JointSettings(TrainSettings):
     """λ_pull: |D̂ − sg(D)| on pixels M^c does not trust."""
     lba_weight: float = setting(0.15, ge=0)
     """λ_lba: (geometric + photometric) averaged over the ``neighbours`` best views."""
+    lba_ncc: str = setting("consistent", choices=("consistent", "covered"))
+    """Where the LBA's photometric term draws its patches after T_joint: ``consistent`` =
+    pixels whose rendered depth the neighbour's D̂ confirms (as PGSR's term), ``covered`` =
+    every pixel the render covers (the photos judge the render where the prior is wrong)."""
     prior_lr: float = setting(1e-4, ge=0)
     """Adam step of log D̂ (a relative change of depth: the same for every scene scale)."""
     consistent_views: int = setting(2, ge=1)
-    """M^c update: confident where the prior passes the geometric check in this many neighbours."""
+    """M^c: a prior depth counts where at least this many neighbours confirm it geometrically
+    (``confirm_depth``), besides the stereo's own confidence and the photos (``confirm_ncc``)."""
+    confirm_depth: float = setting(0.01, gt=0)
+    """M^c: a neighbour confirms a prior depth where the point lands on its *confident* prior
+    pixels within this relative depth difference (a tolerance that stays the same at every
+    training size, where PGSR's 1 px does not)."""
+    confirm_ncc: float = setting(0.5, ge=-1, le=1)
+    """M^c: the real photos confirm a prior depth where the NCC (7×7) between the view's photo
+    and at least ``confirm_photos`` neighbours' photos warped by that depth reaches this;
+    a window without texture can neither confirm nor refute and passes."""
+    confirm_photos: int = setting(1, ge=0)
+    """M^c: neighbours whose photos must agree (``confirm_ncc``); 0 = no photometric check."""
 
 
 # --------------------------------------------------------------------------- stereo
@@ -586,6 +605,18 @@ class MatchCheck(Checked):
     """Neighbours that must agree (a view with fewer neighbours skips the check)."""
     mv_neighbours: int = setting(4, ge=1)
     """Best neighbours tried (``eve3d.neighbours``)."""
+    min_alpha: float = setting(0.5, ge=0, le=1)
+    """Confident only where the pretrained model renders a surface: its alpha in the left
+    view (``stereo/alpha/``) is at least this over the whole ``edge_window`` around the
+    pixel (0 = off). Where it renders nothing (an empty background, the sky) the right view
+    is empty too, and whatever the matcher finds there is no surface."""
+    edge_window: int = setting(5, ge=0)
+    """Not confident within this window (px, about the matcher's: ``block_size`` for
+    ``sgbm``) of a disparity jump (``jump`` px between adjacent pixels, or a matched pixel
+    beside an unmatched one): a window that straddles a silhouette matches the foreground's
+    texture and gives the background beside it the foreground's disparity (0 = off)."""
+    jump: float = setting(1.0, gt=0)
+    """Disparity difference between adjacent pixels that counts as a jump (px)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -165,6 +165,7 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
             right = render_model(model, margin_camera(right_camera(cam, b), margin), rendering)
             write_image(tmp / "right" / f"{cam.view_id}.png",
                         (right.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
+            write_image(tmp / ALPHA_DIR / f"{cam.view_id}.png", (out.alpha.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
             info["views"][cam.view_id] = {"scale": scale, "baseline": b, "min_disparity": float(np.floor(d_min)),
                                           "max_disparity": float(d_max), "margin": margin}
         (tmp / PAIRS_FILE).write_text(json.dumps(info, indent=2))
@@ -223,13 +224,43 @@ def _window_ncc(a: np.ndarray, b: np.ndarray, window: int) -> np.ndarray:
     return np.where((va > 1e-2) & (vb > 1e-2), cov / np.sqrt(va * vb + 1e-12), 0).astype(np.float32)
 
 
+def near_jump(disp: np.ndarray, valid: np.ndarray, jump: float, window: int) -> np.ndarray:
+    """Pixels within a ``window``×``window`` box of a disparity jump: two adjacent pixels
+    whose disparities differ by more than ``jump``, or a ``valid`` pixel beside one that
+    is not."""
+    import cv2
+
+    edge = np.zeros(disp.shape, bool)
+    for d, v, e in ((disp, valid, edge), (disp.T, valid.T, edge.T)):  # along rows, then along columns (views)
+        jumps = (v[:, 1:] != v[:, :-1]) | (v[:, 1:] & (np.abs(d[:, 1:] - d[:, :-1]) > jump))
+        e[:, 1:] |= jumps
+        e[:, :-1] |= jumps
+    kernel = np.ones((window, window), np.uint8)
+    return cv2.dilate(edge.astype(np.uint8), kernel).astype(bool)
+
+
+def rendered_surface(alpha: np.ndarray, min_alpha: float, window: int) -> np.ndarray:
+    """Pixels whose whole ``window``×``window`` box the pretrained model covers with alpha
+    ≥ ``min_alpha``."""
+    import cv2
+
+    low = cv2.erode(alpha.astype(np.float32), np.ones((max(window, 1),) * 2, np.uint8))
+    return low >= min_alpha
+
+
 def checked_confidence(left: np.ndarray, right: np.ndarray, disp: np.ndarray, confidence: np.ndarray,
-                       search: tuple[float, float], margin: int = 0, check: MatchCheck | None = None) -> np.ndarray:
-    """``confidence`` zeroed where a :class:`MatchCheck` fails."""
+                       search: tuple[float, float], margin: int = 0, check: MatchCheck | None = None,
+                       alpha: np.ndarray | None = None) -> np.ndarray:
+    """``confidence`` zeroed where a :class:`MatchCheck` fails; ``alpha``: the pretrained
+    model's alpha in the left view (the ``min_alpha`` check; none without it)."""
     check = check or MatchCheck()
     ok = (disp > search[0] + check.range_margin) & (disp < search[1] - check.range_margin)
     if check.ncc_threshold > 0:
         ok &= warped_ncc(left, right, disp, margin, check.ncc_window) >= check.ncc_threshold
+    if check.edge_window:
+        ok &= ~near_jump(disp, (disp > 0) & (confidence > 0), check.jump, check.edge_window)
+    if alpha is not None and check.min_alpha > 0:
+        ok &= rendered_surface(alpha, check.min_alpha, check.edge_window)
     return np.where(ok, confidence, 0).astype(np.float32)
 
 
@@ -283,7 +314,8 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
                                  f"{left.shape[1]}×{left.shape[0]} plus {margin} columns on the left")
             padded = np.pad(left, ((0, 0), (margin, 0)) + ((0, 0),) * (left.ndim - 2))
             disp, confidence = (m[:, margin:] for m in matcher(padded, right, search))
-            confidence = checked_confidence(left, right, disp, confidence, search, margin, check)
+            confidence = checked_confidence(left, right, disp, confidence, search, margin, check,
+                                            left_alpha(stereo_dir, cam) if check.min_alpha > 0 else None)
             depth = np.where(disp > 0, cam.fx * float(pair["baseline"]) / np.maximum(disp, 1e-6), 0).astype(np.float32)
             if check.mv_ncc_threshold > 0 and len(near) >= check.mv_views:
                 others = [(cameras[j], photo(j)) for j in near]
@@ -295,6 +327,21 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
 
 
 PAIR_KEYS = {"baseline", "min_disparity", "max_disparity", "margin"}
+ALPHA_DIR = "alpha"
+"""The pretrained model's alpha in each left view (the photo's), 0–255 PNG at the pair's size."""
+
+
+def left_alpha(stereo_dir: Path, cam: Camera) -> np.ndarray:
+    """The pretrained model's alpha (0–1) in the left view of ``cam``'s pair."""
+    path = stereo_dir / ALPHA_DIR / f"{cam.view_id}.png"
+    if not path.is_file():
+        raise Eve3dError(f"{path}: missing (stereo.min_alpha reads the pretrained model's alpha, which "
+                         f"`eve3d stereo-render` writes); run `eve3d stereo-render` again, or set stereo.min_alpha: 0")
+    alpha = read_image(path).astype(np.float32) / 255
+    alpha = alpha if alpha.ndim == 2 else alpha[..., 0]
+    if alpha.shape != (cam.height, cam.width):
+        raise Eve3dError(f"{path}: {alpha.shape[1]}×{alpha.shape[0]}, expected the pair's {cam.width}×{cam.height}")
+    return alpha
 
 
 def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSettings | None = None,

@@ -14,7 +14,7 @@ box on the ground: surfaces no camera sees, inside the vase and under the box) a
 a depth bias has nowhere to hide).
 
 Output, laid out the way a user brings data:
-``images/*.png``, ``sparse/0/`` (COLMAP model with the exact poses and visible surface points;
+``images/*.png``, ``sparse/0/`` (COLMAP model with the exact poses and the points SfM triangulates;
 under ``gt/sparse/0/`` instead with ``images_only``), ``masks/`` (object scenes), ``gt/mesh.ply``
 (the whole scene, hidden surfaces included: the evaluator finds what the cameras see) and
 ``eve3d_scene.json``.
@@ -34,6 +34,8 @@ from eve3d.io.colmap import write_colmap
 from eve3d.io.loader import METADATA
 from eve3d.raycast import MeshRaycaster, seen_by
 from eve3d.scene import Camera, Scene
+from eve3d.settings import SfmSettings
+from eve3d.sfm import triangulate_known_poses
 from eve3d.surface import sample_surface
 
 LIGHT = np.array([0.3, -0.5, 1.0]) / np.linalg.norm([0.3, -0.5, 1.0])
@@ -354,9 +356,16 @@ def point_colors(parts: list[Part], caster: MeshRaycaster, cams: list[Camera], p
 
 
 def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: int = 240, seed: int = 0,
-             images_only: bool = False, supersample: int = 2, points: int = 3000, arc: float = 360.0) -> Path:
+             images_only: bool = False, supersample: int = 2, arc: float = 360.0, matcher: str = "exhaustive",
+             surface_samples: int = 0) -> Path:
     """Render the synthetic scene ``kind`` into ``out`` (written atomically); ``arc`` limits
-    the cameras' azimuth range in degrees (a DTU-like front arc for object scenes)."""
+    the cameras' azimuth range in degrees (a DTU-like front arc for object scenes).
+
+    The sparse points are what a user's SfM gives for known poses: features of the rendered
+    photos matched (``matcher``: ``exhaustive`` or ``sequential``, the cameras' order) and
+    triangulated with pycolmap, outliers included (``eve3d.sfm.triangulate_known_poses``).
+    ``surface_samples`` > 0 puts that many exact surface samples in their place instead: a
+    benchmark's fixed model size (``eve3d bench training``), never a method's input."""
     import open3d as o3d
 
     if kind not in KINDS:
@@ -379,8 +388,12 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
         mesh = o3d.geometry.TriangleMesh()
         for part in parts:
             mesh += part.mesh
-        pts, pviews = surface_points(mesh, cams, caster, points, rng)
-        colors = point_colors(parts, caster, cams, pts, pviews, seed)
+        if surface_samples:
+            pts, pviews = surface_points(mesh, cams, caster, surface_samples, rng)
+            colors = point_colors(parts, caster, cams, pts, pviews, seed)
+        else:
+            pts, colors, pviews = triangulate_known_poses(cams, tmp / "images", tmp / "sfm",
+                                                          SfmSettings(matcher=matcher, seed=seed))
         scene = Scene(root=out, cameras=cams, points=pts, point_colors=colors, point_views=pviews)
         write_colmap(scene, tmp / ("gt/sparse/0" if images_only else "sparse/0"))
         (tmp / "gt").mkdir(exist_ok=True)

@@ -15,7 +15,7 @@ from eve3d.layout import Layout
 from eve3d.scene import Eve3dError
 from eve3d.synth import generate
 from eve3d.standin import STANDIN_SCENE, write_log, write_standin
-from tests.helpers import open_report, run_cli, snakemake
+from tests.helpers import TINY_START, open_report, run_cli, snakemake
 
 BENCHMARK_SCENES = {
     "dtu": ["scan24", "scan37", "scan40", "scan55", "scan63", "scan65", "scan69", "scan83", "scan97", "scan105",
@@ -36,7 +36,8 @@ TINY = {"preset": "cpu", "mesh": {"coarsen": 8},
 @pytest.fixture(scope="module")
 def object_views(tmp_path_factory):
     """The object scene, 12 views of 128×96: what the miniature downloads are made of."""
-    return load_scene(generate("object", tmp_path_factory.mktemp("gen") / "object", views=12, width=128, height=96))
+    return load_scene(generate("object", tmp_path_factory.mktemp("gen") / "object", views=12, width=128, height=96,
+                               surface_samples=TINY_START))
 
 
 @pytest.fixture(scope="module")

@@ -14,6 +14,7 @@ from eve3d.priors.oracle import oracle_priors
 from eve3d.settings import JointSettings, PretrainSettings
 from eve3d.stereo import render_right_views, sgbm_priors
 from eve3d.synth import generate
+from tests.helpers import TINY_START
 
 # The cpu preset with both schedules cut from 1500 to 300 iterations: simplification and the
 # end of densification moved inside them; the prior terms, T_joint and the depth-normal and
@@ -45,7 +46,8 @@ def test_eve3d_final_priors_are_closer_to_the_exact_depth_than_the_sgbm_priors(t
     ``eve3d pretrain`` / ``eve3d joint --method eve3d`` with ``--config`` the JSON of ``SMALL``,
     ``eve3d stereo-render``, ``eve3d stereo-depth --backend sgbm`` and ``--backend oracle``
     with their defaults."""
-    scene = load_scene(generate("object", tmp_path / "input", views=12, width=160, height=120))
+    scene = load_scene(generate("object", tmp_path / "input", views=12, width=160, height=120,
+                                surface_samples=TINY_START))
     config = with_preset(SMALL)
     pretrain(scene, tmp_path / "pretrain", stage_settings(PretrainSettings, "pretrain", config))
     render_right_views(scene, tmp_path / "pretrain/point_cloud.ply", tmp_path / "stereo")

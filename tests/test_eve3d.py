@@ -103,6 +103,34 @@ def test_homography_ncc_is_about_one_on_the_true_plane_and_lower_on_a_wrong_one(
     assert scores["20% far"] < 0.9 and scores["50% far"] < 0.6 and scores["untilted"] < scores["true"] - 0.01, scores
 
 
+def test_a_neighbour_pixel_without_a_measured_depth_confirms_nothing():
+    from eve3d.losses import depth_confirmation
+
+    xs = (0.3, -0.2)
+    (ref, *nbrs), depth = _plane_views(0.3, (0.0, *xs))
+    theirs = [_plane_views(0.3, (x,))[1] for x in xs]
+    cams = CameraStack([n.cam for n in nbrs])
+    confirm = lambda d, conf, tol=0.01: depth_confirmation(d, ref.grey, ref.cam, cams, theirs, conf,  # noqa: E731
+                                                           [n.grey for n in nbrs], tol)
+    everywhere = [torch.ones_like(d, dtype=torch.bool) for d in theirs]
+    agrees, ncc, flat = confirm(depth, everywhere)
+    assert agrees.shape == (2, *depth.shape) and agrees.float().mean() > 0.6 and not flat.any()
+    assert float(ncc[agrees].median()) > 0.95  # the photos agree where the depth is right
+    assert not confirm(depth, [~c for c in everywhere])[0].any()  # nothing measured: nothing confirmed
+    # measured only on the left half of each neighbour: a pixel that lands anywhere near the right half confirms nothing
+    left = [c.clone() for c in everywhere]
+    for c in left:
+        c[:, 32:] = False
+    agrees_left = confirm(depth, left)[0]
+    R, t = (x.to(depth.dtype) for x in (cams.R @ ref.cam.R.T, cams.t - (cams.R @ ref.cam.R.T) @ ref.cam.t))
+    uv, _ = cams.project(depth[..., None] * ref.cam.rays() @ R.transpose(1, 2)[:, None] + t[:, None, None])
+    assert agrees_left.any() and not agrees_left[uv[..., 0] > 31.5].any()
+    # 2 % too far: refuted at a 1 % tolerance, confirmed at 3 %, and the photos disagree
+    far = depth * 1.02
+    assert confirm(far, everywhere)[0].float().mean() < 0.05 and confirm(far, everywhere, 0.03)[0].float().mean() > 0.6
+    assert float(confirm(depth * 1.5, everywhere)[1][agrees].mean()) < float(ncc[agrees].mean()) - 0.3
+
+
 # -- priors reaching training -----------------------------------------------------------------
 
 def test_resampling_does_not_mix_valid_and_invalid_depths():
@@ -133,7 +161,7 @@ def noisy_priors(tiny_scene, tmp_path_factory) -> Path:
 
 
 def _eve3d(**kw) -> JointSettings:
-    base = {**methods()["eve3d"].settings, "init_prior_points": 3000}
+    base = {**methods()["eve3d-paper"].settings, "init_prior_points": 3000}  # every Eve3D part on
     densify = joint_settings().densify
     return joint_settings(**{**base, **kw, "method": "eve3d"}, densify=replace(densify, refine_stop=0))
 
@@ -159,6 +187,28 @@ def test_learnable_priors_move_only_as_the_method_says(tiny_scene, tmp_path, noi
                       noisy_priors)
     run.trainer.run(run.loss)
     assert sum(not torch.equal(start[k], v) for k, v in _log_depths(run.trainer).items()) >= 6
+
+
+def test_confidence_never_grows_and_the_check_refutes_what_is_wrong(tiny_scene, tmp_path, noisy_priors):
+    from eve3d.neighbours import select_neighbours
+
+    exact, banded = noisy_priors.parent / "oracle", tmp_path / "banded"
+    banded.mkdir()
+    for cam in tiny_scene.cameras:  # 0.2 % noise, 5 % too far on a band of columns, all confident
+        m = load_maps(exact / f"{cam.view_id}.npz")
+        d = m["depth"] * (1 + 0.002 * np.random.default_rng(0).standard_normal(m["depth"].shape))
+        d[:, 24:34] *= 1.05  # the cameras circle the object: in a neighbour the band falls on other columns
+        save_maps(banded / f"{cam.view_id}.npz", preview=False, depth=d, confidence=m["confidence"], normal=m["normal"])
+    run = setup_joint(tiny_scene, tmp_path / "run", _eve3d(iterations=20, prior_from=0, joint_from=10), banded)
+    priors, views = run.priors, run.trainer.views
+    for i, near in enumerate(select_neighbours(tiny_scene, 4)):
+        priors.update_confidence(i, [views[j] for j in near])
+    kept = lambda cols: float(sum(c[:, cols].sum() for c in priors.confidence)  # noqa: E731
+                              / sum(c[:, cols].sum() for c in priors.star.confidence))
+    assert kept(slice(24, 34)) < 0.2 * kept(slice(36, 64)) and kept(slice(36, 64)) > 0.1
+    run.trainer.run(run.loss)
+    for now, measured in zip(priors.confidence, priors.star.confidence):
+        assert not (now & ~measured).any()  # never more than the stereo measured
 
 
 def test_a_step_leaves_unvisited_views_priors_and_moments_untouched(tiny_scene, tmp_path, noisy_priors):

@@ -12,12 +12,15 @@ from tests.helpers import run_cli
 
 
 def test_synthetic_scene_is_consistent(object_scene):
-    """Sparse points lie on the GT surface and project where the GT depth says."""
+    """The sparse points, SIFT matched between the photos and triangulated with the known
+    poses, project where the GT depth says: photos, cameras and GT mesh agree. Measured:
+    180 points in view 3, median relative depth difference 0.30 %, 95 % within 5 %."""
     caster = MeshRaycaster.from_file(object_scene.gt_mesh)
     cam = object_scene.cameras[3]
     seen = [i for i, v in enumerate(object_scene.point_views) if 3 in v]
     uv, z = cam.project(object_scene.points[seen])
-    assert np.allclose(caster.cast_uv(cam, uv).depth, z, rtol=1e-4)
+    rel = np.abs(caster.cast_uv(cam, uv).depth - z) / z
+    assert len(seen) > 100 and np.median(rel) < 0.01 and np.mean(rel < 0.05) > 0.85
     assert object_scene.kind == "object" and len(object_scene.cameras) == 32
 
 

@@ -7,7 +7,7 @@ import pytest
 from eve3d.bench import stereo_motorcycle
 from eve3d.maps import load_maps
 from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.settings import BaselineSettings, SgbmSettings
+from eve3d.settings import BaselineSettings, MatchCheck, SgbmSettings
 from tests.helpers import shifted_pair, stereo_scene
 from eve3d.stereo import (PAIRS_FILE, checked_confidence, equalizing_curve, local_std, render_right_views,
                           right_camera, sgbm_disparity, sgbm_priors)
@@ -138,6 +138,38 @@ def test_a_shifted_disparity_loses_its_confidence():
     for shift in (3, -3, 5):
         assert kept(true + shift) < 0.1, shift
     assert kept(np.full_like(true, 39.5)) == 0
+
+
+def test_a_silhouette_gives_the_empty_background_no_confident_depth():
+    """A textured square on an empty black background: SGBM's window straddling its edge gives
+    the background beside it the square's disparity (foreground fattening), and the
+    left–right and NCC checks pass it. The jump check drops it, so does the pretrained
+    model's alpha (here exactly the square); what stays confident is right."""
+    left, right = shifted_pair(12, grain=2)
+    square = np.zeros(left.shape[:2], bool)
+    square[24:72, 40:100] = True
+    moved = np.roll(square, -12, axis=1)  # the square in the right view (x_right = x_left − 12)
+    left, right = left * square[..., None], right * moved[..., None]
+    disp, conf = sgbm_disparity(left, right, 40)
+    confident = lambda alpha=None, **check: checked_confidence(  # noqa: E731
+        left, right, disp, conf, (0, 40), check=MatchCheck(**check), alpha=alpha) > 0
+    assert (confident(edge_window=0, min_alpha=0) & ~square).sum() > 100  # the halo
+    for c in (confident(min_alpha=0), confident(square.astype(np.float32), edge_window=0),
+              confident(square.astype(np.float32))):
+        assert not (c & ~square).any() and c[square].mean() > 0.5 and np.all(disp[c] == 12)
+
+
+def test_priors_without_the_pretrained_models_alpha_are_refused_by_name(tmp_path):
+    import shutil
+
+    scene, write_pairs = stereo_scene(tmp_path, 10)
+    write_pairs()
+    shutil.rmtree(tmp_path / "stereo/alpha")
+    with pytest.raises(Eve3dError, match=r"stereo/alpha/v.png: missing .*stereo-render.*min_alpha: 0"):
+        sgbm_priors(scene, tmp_path / "stereo", tmp_path / "priors")
+    assert not (tmp_path / "priors").exists()
+    sgbm_priors(scene, tmp_path / "stereo", tmp_path / "priors", check=MatchCheck(min_alpha=0))
+    assert (tmp_path / "priors/v.npz").exists()
 
 
 def plane_model(tmp_path, depth: float, cam: Camera):

@@ -23,12 +23,15 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
     M^c, a rendered depth's alpha; every pixel of a map without confidence) where the
     exact depth is known: its median (signed, positive = too far), the median of its
     absolute value, the density (those pixels / pixels with exact depth) and the shares
-    off by more than 5 % and 10 % ("confident and wrong")."""
+    off by more than 5 % and 10 % ("confident and wrong"), and ``on_empty``: the share of
+    the pixels without a surface (an empty background, the sky) that have a confident depth
+    (None where every pixel has a surface). For a rendered depth, whose confidence is its
+    alpha, that is the share of empty pixels it covers: floaters, which a TSDF meshes."""
     maps_dir, exact_dir = Path(maps_dir), Path(exact_dir)
     references = sorted(exact_dir.glob("*.npz"))
     if not references:
         raise Eve3dError(f"{exact_dir}: no exact depth maps (*.npz) to score against")
-    errors, confident, known = [], 0, 0
+    errors, confident, known, empty, filled = [], 0, 0, 0, 0
     for ref_path in references:
         path = maps_dir / ref_path.name
         if not path.exists():
@@ -48,6 +51,8 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
         use = has & (confidence >= min_confidence) & (maps["depth"] > 0)
         errors.append((maps["depth"][use] - ref["depth"][use]) / ref["depth"][use])
         confident, known = confident + int(use.sum()), known + int(has.sum())
+        empty += int((~has).sum())
+        filled += int((~has & (confidence >= min_confidence) & (maps["depth"] > 0)).sum())
     err = np.concatenate(errors)  # float32, as the maps: a float64 copy of every pixel would double it
     del errors
     stat = lambda f: float(f(err)) if len(err) else None  # noqa: E731  (None: no pixel to score, valid JSON)
@@ -55,7 +60,8 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
     return {"data": label or str(maps_dir), "median_signed_error": stat(median),
             "median_rel_error": stat(lambda e: median(np.abs(e))), "density": confident / max(known, 1),
             "wrong_5": stat(lambda e: np.count_nonzero(np.abs(e) > np.float64(0.05)) / len(e)),
-            "wrong_10": stat(lambda e: np.count_nonzero(np.abs(e) > np.float64(0.10)) / len(e))}
+            "wrong_10": stat(lambda e: np.count_nonzero(np.abs(e) > np.float64(0.10)) / len(e)),
+            "on_empty": filled / empty if empty else None}
 
 
 MAP_KEYS = ("depth", "confidence")
