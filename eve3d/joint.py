@@ -43,7 +43,7 @@ from eve3d.views import View, Views
 
 def multiview_terms(ref: View, nbrs: list[View], depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,
                     nbr_depths: list[torch.Tensor], mask: torch.Tensor, s: JointSettings, generator: torch.Generator,
-                    with_ncc: bool = True, ncc_on: torch.Tensor | None = None
+                    with_ncc: bool = True
                     ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None, torch.Tensor]:
     """PGSR's multi-view terms of one reference against K neighbours at once, shared by
     PGSR's loss (one neighbour, its depth rendered) and Eve3D's LBA (K neighbours, their
@@ -54,17 +54,14 @@ def multiview_terms(ref: View, nbrs: list[View], depth: torch.Tensor, normal: to
     warped by the plane-induced homography at ``ncc_pixels`` of those pixels drawn at random,
     as the sum of its exp(−φ)-weighted values and the count of pixels where it is defined
     (None when no pixel is drawn); and (K, H, W) the pixels whose round trip is defined and
-    closes within ``mv_threshold`` (whatever ``mask``). ``ncc_on`` (H, W): draw the NCC's
-    pixels from these instead, whatever the geometric check says (a pixel that fails it
-    weighs exp(−``mv_threshold``), the least a passing one weighs)."""
+    closes within ``mv_threshold`` (whatever ``mask``)."""
     cams = CameraStack([n.cam for n in nbrs])
     phi, defined = forward_backward_error(depth, nbr_depths, ref.cam, cams)
     geo, valid = geometric_loss(phi, defined & mask, s.mv_threshold)
     ncc_term = None
     if with_ncc:  # (sum, count) apart: PGSR scales the sum before dividing
-        pool = valid if ncc_on is None else ncc_on.expand_as(valid)
         picks = [idx[torch.randperm(len(idx), generator=generator)[:s.ncc_pixels].to(idx.device)]
-                 for idx in (v.flatten().nonzero().squeeze(1) for v in pool)]
+                 for idx in (v.flatten().nonzero().squeeze(1) for v in valid)]
         drawn = max(len(p) for p in picks)
         if drawn:  # each neighbour's draw, padded to the longest with pixel 0 (not counted)
             pick = torch.zeros(len(nbrs), drawn, dtype=torch.long, device=depth.device)
@@ -75,10 +72,7 @@ def multiview_terms(ref: View, nbrs: list[View], depth: torch.Tensor, normal: to
             ncc, ok = ncc_loss(ref.grey, [n.grey for n in nbrs], ref.cam, cams, normal, distance, pixels,
                                s.ncc_patch)
             ok = ok & counted
-            phi_drawn = phi.flatten(1).gather(1, pick)
-            if ncc_on is not None:
-                phi_drawn = torch.where(valid.flatten(1).gather(1, pick), phi_drawn, s.mv_threshold)
-            w = torch.exp(-phi_drawn).detach() * ok
+            w = torch.exp(-phi.flatten(1).gather(1, pick)).detach() * ok
             ncc_term = (ncc * w).sum(-1), ok.sum(-1).clamp_min(1)
     return geo, ncc_term, defined & (phi < s.mv_threshold)
 
@@ -211,8 +205,7 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
             normal, distance = prior_plane(depth, view, s.prior_normal_span)
             mask = priors.confidence[i] & (normal.norm(dim=-1) > 0)
         geo, ncc, _ = multiview_terms(view, neighbours, depth, normal, distance,
-                                      [priors.trusted(n.index) for n in neighbours], mask, s, generator,
-                                      ncc_on=covered if joint and s.lba_ncc == "covered" else None)
+                                      [priors.trusted(n.index) for n in neighbours], mask, s, generator)
         total = geo.sum() + (0.0 if ncc is None else (ncc[0] / ncc[1]).sum())
         t["lba"] = s.lba_weight * total / len(neighbours)
     return t

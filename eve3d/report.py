@@ -27,8 +27,8 @@ METRICS_CHARTED = (("fscore", "F-score (higher is better)"), ("chamfer", "Chamfe
                    ("psnr", "held-out PSNR in dB (higher is better)"))
 """summary.csv columns drawn as bar charts, with their axis titles."""
 SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "points", "accuracy", "completeness", "chamfer",
-                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "depth_on_empty", "psnr", "ssim", "failed",
-                   "log")
+                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "depth_on_empty", "psnr",
+                   "ssim", "failed", "log")
 """The columns of ``summary.csv`` (``eve3d summary``) and of the report's table; a row whose
 jobs failed has only ``failed`` (the rule and its first error line) and ``log``."""
 STYLE = ("<style>body{font-family:sans-serif;margin:1em}table{border-collapse:collapse;margin-bottom:1.5em}"

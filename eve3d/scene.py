@@ -153,7 +153,7 @@ class Scene:
     def object_radius(self) -> float:
         """Size of the 'normalised units' object-scene settings are given in: 1 when the
         scene is already normalised (DTU, synthetic objects), else the radius that holds
-        95% of the sparse points around their median."""
+        95% of the :meth:`reliable_points` around their median."""
         if "object_radius" in self.extras:
             return float(self.extras["object_radius"])
         points = self.reliable_points()

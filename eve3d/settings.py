@@ -497,10 +497,6 @@ class JointSettings(TrainSettings):
     """λ_pull: |D̂ − sg(D)| on pixels M^c does not trust."""
     lba_weight: float = setting(0.15, ge=0)
     """λ_lba: (geometric + photometric) averaged over the ``neighbours`` best views."""
-    lba_ncc: str = setting("consistent", choices=("consistent", "covered"))
-    """Where the LBA's photometric term draws its patches after T_joint: ``consistent`` =
-    pixels whose rendered depth the neighbour's D̂ confirms (as PGSR's term), ``covered`` =
-    every pixel the render covers (the photos judge the render where the prior is wrong)."""
     prior_lr: float = setting(1e-4, ge=0)
     """Adam step of log D̂ (a relative change of depth: the same for every scene scale)."""
     consistent_views: int = setting(2, ge=1)

@@ -4,6 +4,7 @@ import pytest
 
 from eve3d.io import load_scene
 from eve3d.synth import generate
+from tests.helpers import TINY_START
 
 
 @pytest.fixture(scope="session")
@@ -19,10 +20,10 @@ def object_scene(object_dataset):
 
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory) -> Path:
-    """An 8-view 64×48 object scene: small enough for training tests. SIFT finds nothing to
-    match at this size, so its sparse points are exact surface samples (a training start)."""
+    """An 8-view 64×48 object scene: small enough for training tests; it starts from exact
+    surface samples (``TINY_START``: SIFT finds nothing to match at this size)."""
     return generate("object", tmp_path_factory.mktemp("tiny") / "object", views=8, width=64, height=48,
-                    surface_samples=3000)
+                    surface_samples=TINY_START)
 
 
 @pytest.fixture(scope="session")
