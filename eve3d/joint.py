@@ -273,7 +273,7 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
         prior = PriorState(state, views, loaded, s) if s.priors != "none" else None
         trainer.checkpoint.depend_on(loaded.digest)
     if s.init != "priors":
-        points, colors = initial_points(scene, s.init_random_points, rng)
+        points, colors = initial_points(scene, s.init_random_points, rng, s.init_drop_isolated)
     state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
     exposure = None
     if s.exposure:

@@ -87,7 +87,7 @@ def setup_pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> P
     trainer = Trainer(scene, s, Path(out_dir), "pretrain", tone)
     state, views = trainer.state, trainer.views
     rng = np.random.default_rng(s.seed)
-    points, colors = initial_points(scene, s.init_random_points, rng)
+    points, colors = initial_points(scene, s.init_random_points, rng, s.init_drop_isolated)
     if colors is not None:  # the sparse points' photo colours, into the curve's grey levels
         colors = tone[np.round(colors * 255).astype(np.uint8)] / 255.0
     state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))

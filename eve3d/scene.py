@@ -167,10 +167,32 @@ class Scene:
         them, else all: SfM's two-view points are its least reliable (on the generated vase,
         triangulated: the 95 % radius of all points 2.7, of those in ≥ 3 views 1.5, of the
         object 1.5)."""
-        if self.points is None or self.point_views is None:
-            return self.points
+        return None if self.points is None else self.points[self.reliable(views, enough)]
+
+    def reliable(self, views: int = 3, enough: int = 50) -> np.ndarray:
+        """Which sparse points :meth:`reliable_points` keeps (a boolean mask)."""
+        n = 0 if self.points is None else len(self.points)
+        if self.point_views is None or views <= 2:  # SfM triangulates from two views at least
+            return np.ones(n, bool)
         seen = np.array([len(v) >= views for v in self.point_views], bool)
-        return self.points[seen] if seen.sum() >= enough else self.points
+        return seen if seen.sum() >= enough else np.ones(n, bool)
+
+    def isolated(self, views: int = 3, quantile: float = 0.99) -> np.ndarray:
+        """Which sparse points are outliers of the reconstruction (a boolean mask): seen in
+        fewer than ``views`` images and farther from every :meth:`reliable_points` point
+        than ``quantile`` of those lie from their nearest neighbour. On the generated object
+        such points hang below the table's edge, where a black background lets the
+        Gaussians grown from them stay (docs/results.md, "Floaters")."""
+        from scipy.spatial import cKDTree
+
+        reliable = self.reliable(views)
+        if self.points is None or reliable.all() or reliable.sum() < 2:
+            return np.zeros(0 if self.points is None else len(self.points), bool)
+        tree = cKDTree(self.points[reliable])
+        spacing = np.quantile(tree.query(self.points[reliable], k=2)[0][:, 1], quantile)
+        out = np.zeros(len(self.points), bool)
+        out[~reliable] = tree.query(self.points[~reliable])[0] > spacing
+        return out
 
     def sparse_box(self, low: float = 5.0, high: float = 95.0) -> tuple[np.ndarray, np.ndarray] | None:
         """The box of the :meth:`reliable_points`' ``low``–``high`` percentiles per axis

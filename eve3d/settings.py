@@ -400,6 +400,9 @@ class TrainSettings(RenderSettings):
     layer is what renders: depth 0.2–0.7 % too near (README, Choices)."""
     init_random_points: int = setting(100_000, ge=1)
     """Random initial points when the scene has no sparse points (``init: sparse``)."""
+    init_drop_isolated: bool = False
+    """``init: sparse`` leaves out the sparse points seen in two images only that lie far
+    from every point seen in more (:meth:`eve3d.scene.Scene.isolated`): SfM's outliers."""
     device: str = "auto"
     """``auto`` = CUDA when present, else CPU."""
     seed: int = 0

@@ -37,12 +37,15 @@ LossTerms = Callable[[int, View, RenderOutput], dict[str, torch.Tensor]]
 """``(step, view, rendered view) -> weighted loss terms``, whose sum a step minimises."""
 
 
-def initial_points(scene: Scene, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray | None]:
-    """The scene's sparse points and colours, or ``count`` random points in the cameras'
-    bounding sphere when there are none (3DGS's random initialisation)."""
+def initial_points(scene: Scene, count: int, rng: np.random.Generator,
+                   drop_isolated: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """The scene's sparse points and colours (without its :meth:`~eve3d.scene.Scene.isolated`
+    ones if ``drop_isolated``), or ``count`` random points in the cameras' bounding sphere
+    when there are none (3DGS's random initialisation)."""
     if scene.points is not None and len(scene.points) >= 4:
-        colors = None if scene.point_colors is None else scene.point_colors / 255.0
-        return scene.points, colors
+        keep = ~scene.isolated() if drop_isolated else np.ones(len(scene.points), bool)
+        colors = None if scene.point_colors is None else scene.point_colors[keep] / 255.0
+        return scene.points[keep], colors
     d = rng.normal(size=(count, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pts = scene.center + d * scene.radius * rng.random((count, 1)) ** (1 / 3)
