@@ -94,6 +94,12 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
         from eve3d.stereo import sgbm_priors
 
         sgbm_priors(scene, Path(a.stereo), Path(a.out), pick(SgbmSettings, s), preview=not a.no_preview, check=check)
+    elif s.backend == "mccnn":
+        from eve3d.priors.mccnn import MccnnStereo
+        from eve3d.stereo import stereo_priors
+
+        stereo_priors(scene, Path(a.stereo), Path(a.out), MccnnStereo(s.mccnn, s.min_texture, s.block_size), "MC-CNN",
+                      preview=not a.no_preview, check=check)
     else:
         from eve3d.priors.onnx import OnnxStereo
         from eve3d.stereo import stereo_priors
@@ -537,7 +543,7 @@ def _add_stereo_parsers(sub) -> None:
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--out", required=True, help="output folder (replaced atomically)")
     s.add_argument("--gt-mesh", help="oracle: the mesh (default: the scene's own GT mesh)")
-    s.add_argument("--stereo", help="sgbm, onnx: the output folder of `eve3d stereo-render`")
+    s.add_argument("--stereo", help="sgbm, mccnn, onnx: the output folder of `eve3d stereo-render`")
     s.add_argument("--no-preview", action="store_true")
 
 

@@ -35,9 +35,10 @@ warn and go on, or the check is skipped."""
 TNT_POINTS = ("vertices", "sampled")
 """What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
 official toolbox reads a mesh PLY, or the vertices plus area samples."""
-PRIOR_BACKEND_DEVICES = {"sgbm": "cpu", "onnx": "gpu", "oracle": "cpu"}
-"""Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs, a
-stereo network exported to ONNX, or the exact depth of a scene with a known mesh; each with
+PRIOR_BACKEND_DEVICES = {"sgbm": "cpu", "mccnn": "cpu", "onnx": "gpu", "oracle": "cpu"}
+"""Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs,
+MC-CNN's learned matching costs with SGM, a stereo network exported to ONNX, or the exact
+depth of a scene with a known mesh; each with
 the device its job asks a cluster for (a network runs on the CUDA provider)."""
 PRIOR_BACKENDS = tuple(PRIOR_BACKEND_DEVICES)
 
@@ -657,6 +658,21 @@ class OnnxSpec(Checked):
 
 
 @dataclass
+class MccnnSettings(Checked):
+    """MC-CNN fast's costs with SGM (the ``stereo.mccnn`` mapping; ``eve3d.priors.mccnn``)."""
+
+    SECTION: ClassVar[str] = "stereo.mccnn"
+    weights: str = ""
+    """MC-CNN fast weights (.pt); empty = the Middlebury ones the ``mccnn`` wheel ships."""
+    p1: float = setting(0.2, ge=0)
+    """SGM's penalty for a 1 px disparity change between neighbours, in cost units (1 − cos)."""
+    p2: float = setting(1.0, ge=0)
+    """SGM's penalty for a larger change."""
+    lr_threshold: float = setting(1.0, gt=0)
+    """Left–right check tolerance (px)."""
+
+
+@dataclass
 class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck):
     """The ``stereo`` section: the prior source, the virtual baseline, SGBM's settings and
     the confidence checks (each stage reads its part with :func:`pick`)."""
@@ -666,6 +682,8 @@ class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck):
     """Priors that ``stereo-tsdf`` and the prior methods use (``PRIOR_BACKENDS``)."""
     onnx: OnnxSpec = setting(factory=OnnxSpec)
     """The ``onnx`` backend's model spec."""
+    mccnn: MccnnSettings = setting(factory=MccnnSettings)
+    """The ``mccnn`` backend's settings."""
 
 
 # --------------------------------------------------------------------------- mesh and evaluation
