@@ -214,11 +214,15 @@ def export_psmnet(weights: str | Path | None, out_dir: str | Path, size: tuple[i
     """Write ``out_dir/psmnet.onnx`` (dynamic height and width, or the fixed ``size`` (height,
     width)) and ``out_dir/psmnet.yaml`` (``stereo: {backend: onnx, onnx: ...}``, usable as
     ``--config``); return the config mapping."""
+    import importlib.util
     import warnings
 
     import yaml
 
     from eve3d.fileio import atomic_path
+
+    if importlib.util.find_spec("onnx") is None:  # torch's exporter writes through it
+        raise Eve3dError("exporting to ONNX needs the onnx package: pip install onnx (eve3d's test extra has it)")
 
     if size is not None and (min(size) < MIN_SIDE or size[0] % DIVISOR or size[1] % DIVISOR):
         raise Eve3dError(f"PSMNet export size {size[0]}x{size[1]}: each side must be a multiple of {DIVISOR} "
