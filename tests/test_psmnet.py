@@ -60,10 +60,10 @@ def plane():
 @pytest.fixture(scope="module")
 def torch_disparity(plane):
     left, right, _ = plane
-    net = (lambda im: ((torch.from_numpy(im).float() / 255 - torch.tensor(IMAGENET_MEAN))  # noqa: E731
+    fed = (lambda im: ((torch.from_numpy(im).float() / 255 - torch.tensor(IMAGENET_MEAN))  # noqa: E731
                        / torch.tensor(IMAGENET_STD)).permute(2, 0, 1)[None])
     with torch.no_grad():
-        return load_psmnet()(net(left), net(right))[0, 0].numpy()
+        return load_psmnet()(fed(left), fed(right))[0, 0].numpy()
 
 
 @pytest.fixture(scope="module")
