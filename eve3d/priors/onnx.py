@@ -5,9 +5,8 @@ value scale and normalisation, and either a fixed input size (images resized, di
 rescaled by the width ratio) or a divisor (images padded at the bottom/right to a multiple,
 and to the network's smallest input if it has one, output cropped). FoundationStereo's
 export, for example: inputs ``left``, ``right`` 1×3×H×W RGB 0..255, output ``disp``: the
-defaults below. The CUDA provider is used when
-onnxruntime has it. Confidence comes from a left–right check, the right image's disparity
-from the mirrored pair.
+defaults below. The CUDA provider is used when onnxruntime has it. Confidence comes from a
+left–right check, the right image's disparity from the mirrored pair.
 """
 from __future__ import annotations
 
