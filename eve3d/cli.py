@@ -111,6 +111,26 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
 
 
+def _cmd_export_stereo(a: argparse.Namespace) -> None:
+    import yaml
+
+    from eve3d.priors.psmnet import SPEC_FILE, export_psmnet
+
+    size = None
+    if a.size:
+        try:
+            size = tuple(int(n) for n in a.size.lower().split("x"))
+        except ValueError:
+            size = ()
+        if len(size) != 2:
+            raise Eve3dError(f"--size {a.size!r}: expected HEIGHTxWIDTH, e.g. 256x320")
+    config = export_psmnet(a.weights, a.out, size, a.max_disparity)
+    model = Path(config["stereo"]["onnx"]["model"])
+    print(f"wrote {model} and {model.parent / SPEC_FILE}; use it with --config {model.parent / SPEC_FILE}, "
+          "or paste into your config:")
+    print(yaml.safe_dump(config, sort_keys=False, default_flow_style=None), end="")
+
+
 def _cmd_pretrain(a: argparse.Namespace) -> None:
     from eve3d.io import load_scene
     from eve3d.pretrain import pretrain
@@ -545,6 +565,19 @@ def _add_stereo_parsers(sub) -> None:
     s.add_argument("--gt-mesh", help="oracle: the mesh (default: the scene's own GT mesh)")
     s.add_argument("--stereo", help="sgbm, mccnn, onnx: the output folder of `eve3d stereo-render`")
     s.add_argument("--no-preview", action="store_true")
+    s = sub.add_parser("export-stereo", help="export a stereo network to ONNX for the onnx backend and print its "
+                                             "stereo.onnx config")
+    s.add_argument("network", choices=["psmnet"], help="psmnet: PSMNet with its KITTI 2015 weights")
+    s.add_argument("--weights", help="the checkpoint (default $EVE3D_PSMNET_WEIGHTS, else "
+                                     "~/.cache/eve3d/psmnet/pretrained_model_KITTI2015.tar)")
+    s.add_argument("--out", default="~/.cache/eve3d/psmnet", help="folder for psmnet.onnx and psmnet.yaml "
+                                                                  "(default %(default)s)")
+    s.add_argument("--max-disparity", type=int, default=192,
+                   help="disparity levels, a multiple of 16 (default %(default)s, as trained: another value rescales "
+                        "the output)")
+    s.add_argument("--size", metavar="HEIGHTxWIDTH", help="a fixed input size (images are resized to it); default "
+                                                          "any size, padded to a multiple of 16 and at least 256")
+    s.set_defaults(func=_cmd_export_stereo)
 
 
 def _add_training_parsers(sub) -> None:

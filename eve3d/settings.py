@@ -649,6 +649,8 @@ class OnnxSpec(Checked):
     """Fixed network input (height, width): images are resized to it, disparity rescaled."""
     divisor: int = setting(1, ge=1)
     """Otherwise, pad height and width up to a multiple of this (edge values), crop the output."""
+    min_size: int = setting(1, ge=1)
+    """With ``divisor``: pad height and width up to at least this too (a network's smallest input, e.g. PSMNet's 256)."""
     channel: int = setting(0, ge=0)
     """Channel of the output that holds the disparity (for outputs with a channel axis)."""
     sign: float = setting(1.0, nonzero=True)
