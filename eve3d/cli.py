@@ -94,6 +94,12 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
         from eve3d.stereo import sgbm_priors
 
         sgbm_priors(scene, Path(a.stereo), Path(a.out), pick(SgbmSettings, s), preview=not a.no_preview, check=check)
+    elif s.backend == "mccnn":
+        from eve3d.priors.mccnn import MccnnStereo
+        from eve3d.stereo import stereo_priors
+
+        stereo_priors(scene, Path(a.stereo), Path(a.out), MccnnStereo(s.mccnn, s.min_texture, s.block_size), "MC-CNN",
+                      preview=not a.no_preview, check=check)
     else:
         from eve3d.priors.onnx import OnnxStereo
         from eve3d.stereo import stereo_priors
@@ -103,6 +109,26 @@ def _cmd_stereo_depth(a: argparse.Namespace) -> None:
         stereo_priors(scene, Path(a.stereo), Path(a.out), OnnxStereo(s.onnx), "ONNX stereo", preview=not a.no_preview,
                       check=check)
     print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
+
+
+def _cmd_export_stereo(a: argparse.Namespace) -> None:
+    import yaml
+
+    from eve3d.priors.psmnet import SPEC_FILE, export_psmnet
+
+    size = None
+    if a.size:
+        try:
+            size = tuple(int(n) for n in a.size.lower().split("x"))
+        except ValueError:
+            size = ()
+        if len(size) != 2:
+            raise Eve3dError(f"--size {a.size!r}: expected HEIGHTxWIDTH, e.g. 256x320")
+    config = export_psmnet(a.weights, a.out, size, a.max_disparity)
+    model = Path(config["stereo"]["onnx"]["model"])
+    print(f"wrote {model} and {model.parent / SPEC_FILE}; use it with --config {model.parent / SPEC_FILE}, "
+          "or paste into your config:")
+    print(yaml.safe_dump(config, sort_keys=False, default_flow_style=None), end="")
 
 
 def _cmd_pretrain(a: argparse.Namespace) -> None:
@@ -537,8 +563,21 @@ def _add_stereo_parsers(sub) -> None:
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--out", required=True, help="output folder (replaced atomically)")
     s.add_argument("--gt-mesh", help="oracle: the mesh (default: the scene's own GT mesh)")
-    s.add_argument("--stereo", help="sgbm, onnx: the output folder of `eve3d stereo-render`")
+    s.add_argument("--stereo", help="sgbm, mccnn, onnx: the output folder of `eve3d stereo-render`")
     s.add_argument("--no-preview", action="store_true")
+    s = sub.add_parser("export-stereo", help="export a stereo network to ONNX for the onnx backend and print its "
+                                             "stereo.onnx config")
+    s.add_argument("network", choices=["psmnet"], help="psmnet: PSMNet with its KITTI 2015 weights")
+    s.add_argument("--weights", help="the checkpoint (default $EVE3D_PSMNET_WEIGHTS, else "
+                                     "~/.cache/eve3d/psmnet/pretrained_model_KITTI2015.tar)")
+    s.add_argument("--out", default="~/.cache/eve3d/psmnet", help="folder for psmnet.onnx and psmnet.yaml "
+                                                                  "(default %(default)s)")
+    s.add_argument("--max-disparity", type=int, default=192,
+                   help="disparity levels, a multiple of 16 (default %(default)s, as trained: another value rescales "
+                        "the output)")
+    s.add_argument("--size", metavar="HEIGHTxWIDTH", help="a fixed input size (images are resized to it); default "
+                                                          "any size, padded to a multiple of 16 and at least 256")
+    s.set_defaults(func=_cmd_export_stereo)
 
 
 def _add_training_parsers(sub) -> None:

@@ -35,9 +35,10 @@ warn and go on, or the check is skipped."""
 TNT_POINTS = ("vertices", "sampled")
 """What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
 official toolbox reads a mesh PLY, or the vertices plus area samples."""
-PRIOR_BACKEND_DEVICES = {"sgbm": "cpu", "onnx": "gpu", "oracle": "cpu"}
-"""Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs, a
-stereo network exported to ONNX, or the exact depth of a scene with a known mesh; each with
+PRIOR_BACKEND_DEVICES = {"sgbm": "cpu", "mccnn": "cpu", "onnx": "gpu", "oracle": "cpu"}
+"""Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs,
+MC-CNN's learned matching costs with SGM, a stereo network exported to ONNX, or the exact
+depth of a scene with a known mesh; each with
 the device its job asks a cluster for (a network runs on the CUDA provider)."""
 PRIOR_BACKENDS = tuple(PRIOR_BACKEND_DEVICES)
 
@@ -651,10 +652,27 @@ class OnnxSpec(Checked):
     """Fixed network input (height, width): images are resized to it, disparity rescaled."""
     divisor: int = setting(1, ge=1)
     """Otherwise, pad height and width up to a multiple of this (edge values), crop the output."""
+    min_size: int = setting(1, ge=1)
+    """With ``divisor``: pad height and width up to at least this too (a network's smallest input, e.g. PSMNet's 256)."""
     channel: int = setting(0, ge=0)
     """Channel of the output that holds the disparity (for outputs with a channel axis)."""
     sign: float = setting(1.0, nonzero=True)
     """Multiply the output by this (−1 for networks that output x_right − x_left)."""
+    lr_threshold: float = setting(1.0, gt=0)
+    """Left–right check tolerance (px)."""
+
+
+@dataclass
+class MccnnSettings(Checked):
+    """MC-CNN fast's costs with SGM (the ``stereo.mccnn`` mapping; ``eve3d.priors.mccnn``)."""
+
+    SECTION: ClassVar[str] = "stereo.mccnn"
+    weights: str = ""
+    """MC-CNN fast weights (.pt); empty = the Middlebury ones the ``mccnn`` wheel ships."""
+    p1: float = setting(0.2, ge=0)
+    """SGM's penalty for a 1 px disparity change between neighbours, in cost units (1 − cos)."""
+    p2: float = setting(1.0, ge=0)
+    """SGM's penalty for a larger change."""
     lr_threshold: float = setting(1.0, gt=0)
     """Left–right check tolerance (px)."""
 
@@ -669,6 +687,8 @@ class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck):
     """Priors that ``stereo-tsdf`` and the prior methods use (``PRIOR_BACKENDS``)."""
     onnx: OnnxSpec = setting(factory=OnnxSpec)
     """The ``onnx`` backend's model spec."""
+    mccnn: MccnnSettings = setting(factory=MccnnSettings)
+    """The ``mccnn`` backend's settings."""
 
 
 # --------------------------------------------------------------------------- mesh and evaluation

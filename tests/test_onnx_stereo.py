@@ -41,6 +41,13 @@ class Echo(torch.nn.Module):
         return left[..., 1] + 0 * right[..., 1]
 
 
+class PaddedSize(torch.nn.Module):
+    """Returns 1000 × the input height + its width everywhere: the size the network was fed."""
+
+    def forward(self, left, right):
+        return 0 * (left[:, :1] + right[:, :1]) + left.shape[2] * 1000 + left.shape[3]
+
+
 def export(model, path, shape, dynamic: bool, names=("left", "right"), output="disp"):
     args = (torch.rand(*shape), torch.rand(*shape))
     axes = {n: {0: "batch", 2: "height", 3: "width"} for n in names} if dynamic else None
@@ -59,6 +66,15 @@ def test_divisor_model_pads_crops_and_applies_the_sign(tmp_path):
         np.testing.assert_allclose(np.median(disp[8:-8, 16:-8]), 4.0, atol=0.02)
         d, confident = net(left, right)
         assert confident[8:-8, 16:-8].mean() > 0.9
+
+
+def test_divisor_model_is_padded_to_its_minimum_size(tmp_path):
+    model = export(PaddedSize(), tmp_path / "size.onnx", (1, 3, 16, 24), dynamic=True)
+    image = np.zeros((45, 61, 3), np.uint8)
+    for spec, fed in [(dict(divisor=8), (48, 64)), (dict(divisor=8, min_size=56), (56, 64)),
+                      (dict(divisor=16, min_size=50), (64, 64))]:  # at least min_size, still a multiple
+        out = OnnxStereo(OnnxSpec(model=str(model), **spec)).disparity(image, image)
+        assert out.shape == (45, 61) and np.all(out == fed[0] * 1000 + fed[1]), spec
 
 
 def test_fixed_size_model_resizes_and_rescales_disparity(tmp_path):

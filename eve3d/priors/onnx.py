@@ -3,10 +3,10 @@
 A small spec says how to feed it (config ``stereo.onnx``): input and output names, layout,
 value scale and normalisation, and either a fixed input size (images resized, disparity
 rescaled by the width ratio) or a divisor (images padded at the bottom/right to a multiple,
-output cropped). FoundationStereo's export, for example: inputs ``left``, ``right``
-1×3×H×W RGB 0..255, output ``disp``: the defaults below. The CUDA provider is used when
-onnxruntime has it. Confidence comes from a left–right check, the right image's disparity
-from the mirrored pair.
+and to the network's smallest input if it has one, output cropped). FoundationStereo's
+export, for example: inputs ``left``, ``right`` 1×3×H×W RGB 0..255, output ``disp``: the
+defaults below. The CUDA provider is used when onnxruntime has it. Confidence comes from a
+left–right check, the right image's disparity from the mirrored pair.
 """
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ class OnnxStereo:
             resize = lambda im: cv2.resize(im, (tw, th), interpolation=cv2.INTER_AREA if tw < w else cv2.INTER_LINEAR)  # noqa: E731
             out = self._run(resize(left), resize(right))
             return cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(w / tw)
-        ph, pw = -h % s.divisor, -w % s.divisor
+        ph, pw = (max(n, s.min_size) + -max(n, s.min_size) % s.divisor - n for n in (h, w))
         pad = lambda im: np.pad(im, ((0, ph), (0, pw), (0, 0)), mode="edge")  # noqa: E731
         return self._run(pad(left), pad(right))[:h, :w]
 
