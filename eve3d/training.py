@@ -43,9 +43,11 @@ def initial_points(scene: Scene, count: int, rng: np.random.Generator,
     ones if ``drop_isolated``), or ``count`` random points in the cameras' bounding sphere
     when there are none (3DGS's random initialisation)."""
     if scene.points is not None and len(scene.points) >= 4:
-        keep = ~scene.isolated() if drop_isolated else np.ones(len(scene.points), bool)
-        colors = None if scene.point_colors is None else scene.point_colors[keep] / 255.0
-        return scene.points[keep], colors
+        points, colors = scene.points, scene.point_colors
+        if drop_isolated:
+            keep = ~scene.isolated()
+            points, colors = points[keep], None if colors is None else colors[keep]
+        return points, None if colors is None else colors / 255.0
     d = rng.normal(size=(count, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pts = scene.center + d * scene.radius * rng.random((count, 1)) ** (1 / 3)
