@@ -105,9 +105,9 @@ class MccnnStereo:
         pixel's window has texture (``min_texture``)."""
         low, high = max(int(np.floor(search[0])), 0), int(np.ceil(search[1]))
         cost_l, cost_r = self.costs(left, right, low, high)
-        disp_l, disp_r = (winner(semi_global(c, self.s.p1, self.s.p2)) + low for c in (cost_l, cost_r))
-        disp_l = np.where(disp_l > 0, disp_l, 0).astype(np.float32)
-        ok = left_right_consistent(disp_l, np.maximum(disp_r, 0), self.s.lr_threshold)
+        # both ≥ low ≥ 0: no negative disparity to clear
+        disp_l, disp_r = (winner(semi_global(c, self.s.p1, self.s.p2)) + np.float32(low) for c in (cost_l, cost_r))
+        ok = left_right_consistent(disp_l, disp_r, self.s.lr_threshold)
         ok &= local_std(left, self.texture_window) >= self.min_texture
         return disp_l, ok.astype(np.float32)
 
@@ -123,7 +123,7 @@ def winner(total) -> np.ndarray:
     curve = cm - 2 * c0 + cp
     inner = (best > 0) & (best < len(total) - 1) & (curve > 0)
     d = torch.where(inner, best + (cm - cp) / (2 * curve.clamp_min(1e-9)), best.float())
-    return d.numpy().astype(np.float32)
+    return d.float().numpy()
 
 
 PATHS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))
