@@ -17,6 +17,7 @@ from unittest import mock
 
 import numpy as np
 
+from eve3d.evaluate.depth import WEAK_TEXTURE
 from eve3d.scene import Eve3dError
 
 if TYPE_CHECKING:
@@ -187,12 +188,19 @@ def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0, wls: bool 
 
 
 def prior_accuracy(priors_dir, reference_dir, scene: str = "") -> dict:
-    """:func:`eve3d.evaluate.depth.depth_accuracy` of one folder of priors, named by its backend."""
+    """:func:`eve3d.evaluate.depth.depth_accuracy` of one folder of priors
+    (``results/{scene}/priors/{backend}``), named by its backend; on a generated scene's
+    weakly textured pixels too, from its photos (``results/{scene}/input/images``)."""
     from pathlib import Path
 
     from eve3d.evaluate.depth import depth_accuracy
+    from eve3d.layout import Layout
+    from eve3d.settings import StereoSettings
 
-    return {**depth_accuracy(priors_dir, reference_dir, scene), "backend": Path(priors_dir).name}
+    scene_dir = Path(priors_dir).parent.parent
+    images = Layout(scene_dir.parent).input(scene_dir.name) / "images"
+    return {**depth_accuracy(priors_dir, reference_dir, scene, images=images if images.is_dir() else None,
+                             window=StereoSettings.block_size), "backend": Path(priors_dir).name}
 
 
 def format_stereo_tables(moto: list[dict], priors: list[dict], agreement: list[dict] = ()) -> str:
@@ -223,15 +231,26 @@ def agreement_lines(rows: list[dict]) -> list[str]:
 def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
     """A table of :func:`prior_accuracy` rows, one label each."""
     width = max(len(title), *map(len, labels))
+    weak = any("weak_share" in r for r in rows)
     lines = [f"{title:<{width}} {'median signed':>13} {'median rel. error':>17} {'density':>8} {'off >5 %':>9} "
-             f"{'off >10 %':>9} {'on empty':>9}"]
+             f"{'off >10 %':>9} {'on empty':>9}" + (f" {'weak texture: share':>19} {'density':>8} {'error':>8}"
+                                                   if weak else "")]
+    percent = lambda v, f=".2f": "-" if v is None else f"{v * 100:{f}} %"  # noqa: E731
     for label, r in zip(labels, rows):
-        empty = "-" if r.get("on_empty") is None else f"{r['on_empty'] * 100:.2f} %"
+        line = f"{label:<{width}} "
         if r["median_signed_error"] is None:  # no confident pixel with an exact depth
-            lines.append(f"{label:<{width}} {'-':>13} {'-':>17} {r['density']:8.3f} {'-':>9} {'-':>9} {empty:>9}")
-            continue
-        lines.append(f"{label:<{width}} {r['median_signed_error'] * 100:+11.2f} % {r['median_rel_error'] * 100:15.2f} % "
-                     f"{r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % {r['wrong_10'] * 100:7.1f} % {empty:>9}")
+            line += f"{'-':>13} {'-':>17} {r['density']:8.3f} {'-':>9} {'-':>9} "
+        else:
+            line += (f"{r['median_signed_error'] * 100:+11.2f} % {r['median_rel_error'] * 100:15.2f} % "
+                     f"{r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % {r['wrong_10'] * 100:7.1f} % ")
+        line += f"{percent(r.get('on_empty')):>9}"
+        if weak:
+            line += (f" {percent(r.get('weak_share'), '.1f'):>19} {r.get('weak_density', 0):8.3f} "
+                     f"{percent(r.get('weak_rel_error')):>8}")
+        lines.append(line)
+    if weak:
+        lines.append(f"weak texture: pixels with a surface whose photo varies less than {WEAK_TEXTURE:g} grey levels "
+                     f"over the matcher's window")
     return lines
 
 

@@ -18,7 +18,7 @@ def save_maps(path: Path, preview: bool = True, **maps: np.ndarray) -> None:
             np.savez_compressed(f, **arrays)
     if preview:
         for key, arr in arrays.items():
-            write_image(path.with_name(f"{path.stem}.{key}.png"), preview_image(key, arr, arrays.get("depth")))
+            write_image(path.with_name(f"{path.stem}.{key}.png"), preview_image(key, arr, arrays.get("confidence")))
 
 
 def load_maps(path: Path, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
@@ -56,15 +56,17 @@ def depth_at(depth: np.ndarray, width: int, height: int) -> np.ndarray:
     return cv2.resize(depth, (width, height), interpolation=cv2.INTER_NEAREST)
 
 
-def preview_image(key: str, arr: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
-    """RGB uint8 preview: depth coloured (turbo, near = red), confidence grey, normals RGB."""
+def preview_image(key: str, arr: np.ndarray, confidence: np.ndarray | None = None) -> np.ndarray:
+    """RGB uint8 preview: depth coloured (turbo, near = red; black where it has no depth or,
+    given ``confidence``, none of it: a matcher's rejected guesses neither show nor stretch the
+    colour range), confidence grey, normals RGB."""
     import cv2
 
     if key == "normal":
         valid = np.linalg.norm(arr, axis=-1) > 0
         return np.where(valid[..., None], (arr * [0.5, -0.5, -0.5] + 0.5) * 255, 0).clip(0, 255).astype(np.uint8)
     if key == "depth":
-        valid = arr > 0
+        valid = (arr > 0) & (True if confidence is None else confidence > 0)
         if not valid.any():
             return np.zeros(arr.shape + (3,), np.uint8)
         lo, hi = np.percentile(arr[valid], [1, 99])

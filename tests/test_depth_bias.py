@@ -47,6 +47,32 @@ def test_depth_accuracy_signs_the_error(tmp_path):
     assert depth_accuracy(tmp_path / "none", tmp_path / "exact")["median_signed_error"] is None  # nothing to score
 
 
+def test_depth_accuracy_on_weak_texture(tmp_path):
+    """With the photos, the weakly textured pixels (a flat grey half) are scored on their own:
+    their share of the surface, how many have a depth, and their error."""
+    import cv2
+
+    exact = np.full((20, 40), 2.0, np.float32)
+    photo = np.full((20, 40), 128, np.uint8)
+    photo[:, 20:] = np.random.default_rng(0).integers(0, 255, (20, 20))  # textured right half
+    depth = exact * 1.01
+    depth[:, 20:] = exact[:, 20:] * 0.98
+    confidence = np.ones_like(exact)
+    confidence[:, :10] = 0  # half of the flat half has no depth
+    (tmp_path / "images").mkdir()
+    cv2.imwrite(str(tmp_path / "images" / "a.png"), photo)
+    save_maps(tmp_path / "exact" / "a.npz", preview=False, depth=exact, confidence=np.ones_like(exact))
+    save_maps(tmp_path / "maps" / "a.npz", preview=False, depth=depth, confidence=confidence)
+    acc = depth_accuracy(tmp_path / "maps", tmp_path / "exact", images=tmp_path / "images", window=5)
+    # the 5 px window reaches 2 px into the textured half from the flat one
+    assert acc["weak_share"] == pytest.approx(18 / 40)
+    assert acc["weak_density"] == pytest.approx(8 / 18)
+    assert acc["weak_rel_error"] == pytest.approx(0.01, rel=1e-4)
+    assert "weak_share" not in depth_accuracy(tmp_path / "maps", tmp_path / "exact")
+    with pytest.raises(Eve3dError, match="no photo of view a"):
+        depth_accuracy(tmp_path / "maps", tmp_path / "exact", images=tmp_path)
+
+
 def plane_pair(tilt_deg: float, disparity: float, margin: int = 48) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
     """The ``plane`` kind's textured plane 2 units in front of a camera, turned by
     ``tilt_deg`` about the camera's x axis (depth changing from top to bottom), and its exact right view (ray-cast, 2×2

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from eve3d.bench import stereo_motorcycle
-from eve3d.maps import load_maps
+from eve3d.maps import load_maps, preview_image
 from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.settings import BaselineSettings, MatchCheck, SgbmSettings
 from tests.helpers import shifted_pair, stereo_scene
@@ -257,3 +257,16 @@ def test_dark_room_is_the_inside_room_darker_and_flatter(tmp_path):
     assert dark[walls].mean() < 0.4 * bright[walls].mean()
     spread = lambda im: np.median(np.stack([local_std(v, 5) for v in im])[walls])  # noqa: E731
     assert spread(dark) < 0.4 * spread(bright)
+
+
+def test_depth_preview_shows_only_confident_depth():
+    """A matcher that keeps a guess where it is not confident (mccnn, a network): the preview
+    leaves those pixels black, and a far wrong guess does not flatten the others' colours."""
+    depth = np.tile(np.linspace(2.0, 3.0, 40, dtype=np.float32), (10, 1))
+    depth[:, :5] = 80.0  # rejected guesses
+    confidence = np.ones_like(depth)
+    confidence[:, :5] = 0
+    shown = preview_image("depth", depth, confidence)
+    assert not shown[:, :5].any()
+    assert np.ptp(shown[:, 5:].astype(int), axis=1).max() > 100  # 2 → 3 still spans the colour map
+    assert preview_image("depth", depth)[:, :5].any()  # without a confidence every depth shows

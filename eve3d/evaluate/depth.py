@@ -16,8 +16,31 @@ from eve3d.settings import MeshSettings
 from eve3d.scene import Eve3dError
 
 
+WEAK_TEXTURE = 2.0
+"""Grey levels (0–255): a pixel whose photo varies less than this (standard deviation over the
+matcher's window, ``stereo.block_size``) is *weakly textured*, where a photometric matcher has
+little to match and a learned one may still guess."""
+
+
+def weak_texture(images: Path, view: str, width: int, height: int, window: int) -> np.ndarray:
+    """Which pixels of ``view``'s photo in ``images``, at ``width``×``height``, are weakly
+    textured (:data:`WEAK_TEXTURE`)."""
+    import cv2
+
+    from eve3d.stereo import local_std
+
+    files = sorted(images.glob(f"{view}.*"))
+    if not files:
+        raise Eve3dError(f"{images}: no photo of view {view} to find its weakly textured pixels")
+    photo = cv2.imread(str(files[0]), cv2.IMREAD_GRAYSCALE)
+    if photo is None:
+        raise Eve3dError(f"{files[0]}: not a readable image")
+    return local_std(cv2.resize(photo, (width, height), interpolation=cv2.INTER_AREA), window) < WEAK_TEXTURE
+
+
 def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
-                   min_confidence: float = MeshSettings.min_confidence) -> dict:
+                   min_confidence: float = MeshSettings.min_confidence, images: Path | None = None,
+                   window: int = 5) -> dict:
     """Relative depth error (D − D_exact) / D_exact of the maps in ``maps_dir`` on their
     confident pixels (confidence ≥ ``min_confidence``, the pixels a mesh fuses: a prior's
     M^c, a rendered depth's alpha; every pixel of a map without confidence) where the
@@ -26,12 +49,16 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
     off by more than 5 % and 10 % ("confident and wrong"), and ``on_empty``: the share of
     the pixels without a surface (an empty background, the sky) that have a confident depth
     (None where every pixel has a surface). For a rendered depth, whose confidence is its
-    alpha, that is the share of empty pixels it covers: floaters, which a TSDF meshes."""
+    alpha, that is the share of empty pixels it covers: floaters, which a TSDF meshes.
+    With the photos (``images``), also the density and median error on the weakly textured
+    pixels with a surface (:func:`weak_texture` over ``window``): ``weak_density``,
+    ``weak_rel_error`` and ``weak_share`` (their share of the pixels with a surface)."""
     maps_dir, exact_dir = Path(maps_dir), Path(exact_dir)
     references = sorted(exact_dir.glob("*.npz"))
     if not references:
         raise Eve3dError(f"{exact_dir}: no exact depth maps (*.npz) to score against")
     errors, confident, known, empty, filled = [], 0, 0, 0, 0
+    weak_errors, weak_known = [], 0
     for ref_path in references:
         path = maps_dir / ref_path.name
         if not path.exists():
@@ -53,6 +80,10 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
         confident, known = confident + int(use.sum()), known + int(has.sum())
         empty += int((~has).sum())
         filled += int((~has & (confidence >= min_confidence) & (maps["depth"] > 0)).sum())
+        if images is not None:
+            weak = weak_texture(images, ref_path.stem, w, h, window)
+            weak_errors.append(errors[-1][weak[use]])
+            weak_known += int((has & weak).sum())
     err = np.concatenate(errors)  # float32, as the maps: a float64 copy of every pixel would double it
     del errors
     stat = lambda f: float(f(err)) if len(err) else None  # noqa: E731  (None: no pixel to score, valid JSON)
@@ -61,7 +92,16 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
             "median_rel_error": stat(lambda e: median(np.abs(e))), "density": confident / max(known, 1),
             "wrong_5": stat(lambda e: np.count_nonzero(np.abs(e) > np.float64(0.05)) / len(e)),
             "wrong_10": stat(lambda e: np.count_nonzero(np.abs(e) > np.float64(0.10)) / len(e)),
-            "on_empty": filled / empty if empty else None}
+            "on_empty": filled / empty if empty else None, **_weak_figures(weak_errors, weak_known, known)}
+
+
+def _weak_figures(errors: list[np.ndarray], weak: int, known: int) -> dict:
+    """The weakly textured pixels' share, density and median error (none without photos)."""
+    if not errors:
+        return {}
+    err = np.concatenate(errors)
+    return {"weak_share": weak / max(known, 1), "weak_density": len(err) / max(weak, 1),
+            "weak_rel_error": float(median(np.abs(err))) if len(err) else None}
 
 
 MAP_KEYS = ("depth", "confidence")
