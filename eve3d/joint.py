@@ -150,6 +150,8 @@ def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], 
         visible = out.visible
         if s.scale_weight and visible.any():
             t["scale"] = s.scale_weight * trainer.model.scales[visible].amin(-1).mean()
+        if s.opacity_weight and visible.any():
+            t["opacity"] = s.opacity_weight * trainer.model.opacities[visible].mean()
         covered = out.alpha.detach() > 0.5
         if step >= s.dn_from and s.dn_weight:
             t["depth_normal"] = s.dn_weight * depth_normal_loss(out.depth, out.normal, view.image, view.cam, covered)

@@ -455,6 +455,11 @@ class JointSettings(TrainSettings):
     """Depth rendered for meshing: ``depth`` (PGSR's unbiased depth) or ``depth_expected``."""
     scale_weight: float = setting(100.0, ge=0)
     """Flattening loss: weight × mean(min scale of the visible Gaussians)."""
+    opacity_weight: float = setting(0.0, ge=0)
+    """Opacity loss: weight × mean opacity of the visible Gaussians (3DGS-MCMC's regulariser).
+    A Gaussian whose colour matches what lies behind it (black on a black background) gets no
+    photometric gradient, and this lowers its opacity until it is pruned; any Gaussian the
+    photos need outweighs it. 0 = off."""
     dn_weight: float = setting(0.015, ge=0)
     """Weight of the depth–normal consistency loss (PGSR)."""
     dn_from: int = setting(7000, ge=0)

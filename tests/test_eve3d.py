@@ -371,3 +371,20 @@ def test_prior_method_without_priors_stops_with_what_is_missing(tiny_dataset, tm
                 "--priors", tmp_path / "stereo")
     assert r.returncode == 2 and "no priors folder (run the stereo stage" in r.stderr
     assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
+
+
+def test_opacity_loss_lowers_the_opacity_of_every_visible_gaussian(tiny_scene, tmp_path):
+    """``opacity_weight``: weight × mean opacity of the Gaussians a view sees, a term of its
+    own, whose gradient lowers each of their opacities; off by default."""
+    run = setup_joint(tiny_scene, tmp_path / "on", joint_settings(opacity_weight=0.01))
+    model = run.trainer.model
+    view = run.trainer.views[run.trainer.views.train_ids[0]]
+    out = run.trainer.render(view, 0)
+    terms = run.loss(0, view, out)
+    opacities = model.opacities[out.visible].detach()
+    assert out.visible.any() and float(terms["opacity"]) == pytest.approx(0.01 * float(opacities.mean()), rel=1e-5)
+    terms["opacity"].backward()
+    grad = model.params["logit_opacities"].grad
+    assert (grad[out.visible] > 0).all() and (grad[~out.visible] == 0).all()
+    off = setup_joint(tiny_scene, tmp_path / "off", joint_settings())
+    assert "opacity" not in off.loss(0, view, off.trainer.render(view, 0))
