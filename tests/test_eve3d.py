@@ -382,7 +382,7 @@ def test_opacity_loss_lowers_the_opacity_of_every_visible_gaussian(tiny_scene, t
     out = run.trainer.render(view, 0)
     terms = run.loss(0, view, out)
     opacities = model.opacities[out.visible].detach()
-    assert out.visible.any() and float(terms["opacity"]) == pytest.approx(0.01 * float(opacities.mean()), rel=1e-5)
+    assert out.visible.any() and float(terms["opacity"].detach()) == pytest.approx(0.01 * float(opacities.mean()), rel=1e-5)
     terms["opacity"].backward()
     grad = model.params["logit_opacities"].grad
     assert (grad[out.visible] > 0).all() and (grad[~out.visible] == 0).all()
