@@ -195,12 +195,11 @@ def prior_accuracy(priors_dir, reference_dir, scene: str = "") -> dict:
 
     from eve3d.evaluate.depth import depth_accuracy
     from eve3d.layout import Layout
-    from eve3d.settings import StereoSettings
 
     scene_dir = Path(priors_dir).parent.parent
     images = Layout(scene_dir.parent).input(scene_dir.name) / "images"
-    return {**depth_accuracy(priors_dir, reference_dir, scene, images=images if images.is_dir() else None,
-                             window=StereoSettings.block_size), "backend": Path(priors_dir).name}
+    return {**depth_accuracy(priors_dir, reference_dir, scene, images=images if images.is_dir() else None),
+            "backend": Path(priors_dir).name}
 
 
 def format_stereo_tables(moto: list[dict], priors: list[dict], agreement: list[dict] = ()) -> str:

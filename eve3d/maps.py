@@ -66,7 +66,9 @@ def preview_image(key: str, arr: np.ndarray, confidence: np.ndarray | None = Non
         valid = np.linalg.norm(arr, axis=-1) > 0
         return np.where(valid[..., None], (arr * [0.5, -0.5, -0.5] + 0.5) * 255, 0).clip(0, 255).astype(np.uint8)
     if key == "depth":
-        valid = (arr > 0) & (True if confidence is None else confidence > 0)
+        valid = arr > 0
+        if confidence is not None:
+            valid &= confidence > 0
         if not valid.any():
             return np.zeros(arr.shape + (3,), np.uint8)
         lo, hi = np.percentile(arr[valid], [1, 99])

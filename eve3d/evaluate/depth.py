@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.maps import depth_at, load_maps, map_camera, same_aspect
-from eve3d.settings import MeshSettings
+from eve3d.settings import MeshSettings, StereoSettings
 from eve3d.scene import Eve3dError
 
 
@@ -40,7 +40,7 @@ def weak_texture(images: Path, view: str, width: int, height: int, window: int) 
 
 def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
                    min_confidence: float = MeshSettings.min_confidence, images: Path | None = None,
-                   window: int = 5) -> dict:
+                   window: int = StereoSettings.block_size) -> dict:
     """Relative depth error (D − D_exact) / D_exact of the maps in ``maps_dir`` on their
     confident pixels (confidence ≥ ``min_confidence``, the pixels a mesh fuses: a prior's
     M^c, a rendered depth's alpha; every pixel of a map without confidence) where the
