@@ -135,6 +135,22 @@ class PriorState:
         self.confidence[i].copy_(self.star.confidence[i] & confirmed)
 
 
+@torch.no_grad()
+def on_prior_surface(model: GaussianModel, view: View, priors: PriorState, margin: float) -> torch.Tensor:
+    """(N,) bool: the Gaussians whose centre projects into ``view`` onto a pixel where the
+    prior is confident and lies within ``margin`` × its depth of the centre's depth."""
+    cam = view.cam
+    xc = model.params["means"] @ cam.R.T + cam.t
+    z = xc[:, 2]
+    safe = z.clamp_min(1e-9)
+    u = torch.floor(cam.fx * xc[:, 0] / safe + cam.cx).long()
+    v = torch.floor(cam.fy * xc[:, 1] / safe + cam.cy).long()
+    inside = (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    u, v = u.clamp(0, cam.width - 1), v.clamp(0, cam.height - 1)
+    depth = priors.depth(view.index)[v, u]
+    return inside & priors.confidence[view.index][v, u] & ((z - depth).abs() <= margin * depth)
+
+
 def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None,
                exposure: torch.Tensor | None = None) -> LossTerms:
     """The loss function of the joint stage (see the module docstring). ``exposure``: the
@@ -151,7 +167,11 @@ def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], 
         if s.scale_weight and visible.any():
             t["scale"] = s.scale_weight * trainer.model.scales[visible].amin(-1).mean()
         if s.opacity_weight and visible.any():
-            t["opacity"] = s.opacity_weight * trainer.model.opacities[visible].mean()
+            lowered = visible
+            if priors is not None and s.opacity_spare:
+                lowered = visible & ~on_prior_surface(trainer.model, view, priors, s.opacity_spare)
+            # per visible Gaussian, the same push whether or not some are spared
+            t["opacity"] = s.opacity_weight * trainer.model.opacities[lowered].sum() / visible.sum()
         covered = out.alpha.detach() > 0.5
         if step >= s.dn_from and s.dn_weight:
             t["depth_normal"] = s.dn_weight * depth_normal_loss(out.depth, out.normal, view.image, view.cam, covered)

@@ -460,6 +460,11 @@ class JointSettings(TrainSettings):
     A Gaussian whose colour matches what lies behind it (black on a black background) gets no
     photometric gradient, and this lowers its opacity until it is pruned; any Gaussian the
     photos need outweighs it. 0 = off."""
+    opacity_spare: float = setting(0.0, ge=0)
+    """Methods with priors: the opacity loss spares the Gaussians whose centre lies within this
+    relative depth of the confident prior at its pixel (on a measured surface), so it lowers
+    only the others: floaters, and the Gaussians behind a surface or inside an object that
+    would show through a surface it made semi-transparent. 0 = spares none."""
     dn_weight: float = setting(0.015, ge=0)
     """Weight of the depth–normal consistency loss (PGSR)."""
     dn_from: int = setting(7000, ge=0)

@@ -388,3 +388,31 @@ def test_opacity_loss_lowers_the_opacity_of_every_visible_gaussian(tiny_scene, t
     assert (grad[out.visible] > 0).all() and (grad[~out.visible] == 0).all()
     off = setup_joint(tiny_scene, tmp_path / "off", joint_settings())
     assert "opacity" not in off.loss(0, view, off.trainer.render(view, 0))
+
+
+def test_opacity_loss_spares_the_gaussians_on_the_confident_prior(tiny_scene, tmp_path, noisy_priors):
+    """``opacity_spare``: a Gaussian whose centre lies on the confident prior at its pixel
+    keeps its opacity; the same Gaussian moved 20 % nearer the camera (in free space) is
+    lowered, with the push per visible Gaussian of the plain opacity loss."""
+    from eve3d.joint import on_prior_surface
+
+    exact = noisy_priors.parent / "oracle"
+    run = setup_joint(tiny_scene, tmp_path, _eve3d(prior_from=0, lba_weight=0.0, init="priors", opacity_weight=0.01,
+                                                   opacity_spare=0.02), exact)
+    model, view = run.trainer.model, run.trainer.views[run.trainer.views.train_ids[0]]
+    visible = run.trainer.render(view, 0).visible
+    before = on_prior_surface(model, view, run.priors, 0.02)
+    assert before[visible].float().mean() > 0.5  # they start on the priors' surface
+    with torch.no_grad():  # every other Gaussian slides 20 % of its depth towards this camera
+        means, centre = model.params["means"], -view.cam.R.T @ view.cam.t
+        means[1::2] = centre + 0.8 * (means[1::2] - centre)
+    spared = on_prior_surface(model, view, run.priors, 0.02)
+    assert torch.equal(spared[0::2], before[0::2]) and not spared[1::2][before[1::2]].any()
+    out = run.trainer.render(view, 0)
+    terms = run.loss(0, view, out)
+    lowered = out.visible & ~spared
+    expected = 0.01 * float(model.opacities.detach()[lowered].sum() / out.visible.sum())
+    assert float(terms["opacity"].detach()) == pytest.approx(expected, rel=1e-5)
+    terms["opacity"].backward()
+    grad = model.params["logit_opacities"].grad
+    assert (grad[lowered] > 0).all() and (grad[~lowered] == 0).all()
