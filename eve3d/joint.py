@@ -26,7 +26,7 @@ from eve3d.fileio import atomic_dir, atomic_path, write_image
 from eve3d.gaussians import GaussianModel
 from eve3d.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
 from eve3d.losses import (CameraStack, depth_confirmation, depth_normal_loss, depth_to_normal, depth_to_points,
-                          forward_backward_error, geometric_loss, ncc_loss, rgb_loss)
+                          forward_backward_error, geometric_loss, ncc_loss, project_points, rgb_loss)
 from eve3d.maps import save_maps
 from eve3d.methods import uses_priors
 from eve3d.neighbours import select_neighbours
@@ -140,11 +140,8 @@ def on_prior_surface(model: GaussianModel, view: View, priors: PriorState, margi
     """(N,) bool: the Gaussians whose centre projects into ``view`` onto a pixel where the
     prior is confident and lies within ``margin`` × its depth of the centre's depth."""
     cam = view.cam
-    xc = model.params["means"] @ cam.R.T + cam.t
-    z = xc[:, 2]
-    safe = z.clamp_min(1e-9)
-    u = torch.floor(cam.fx * xc[:, 0] / safe + cam.cx).long()
-    v = torch.floor(cam.fy * xc[:, 1] / safe + cam.cy).long()
+    uv, z = project_points(model.params["means"] @ cam.R.T + cam.t, cam)
+    u, v = torch.floor(uv).long().unbind(-1)
     inside = (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
     u, v = u.clamp(0, cam.width - 1), v.clamp(0, cam.height - 1)
     depth = priors.depth(view.index)[v, u]

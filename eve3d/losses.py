@@ -244,7 +244,7 @@ def forward_backward_error(depth_ref: torch.Tensor, depth_nbrs: Sequence[torch.T
     uv_n, z_n = nbrs.project(p_nbr)
     d_n = _sample([d[..., None] for d in depth_nbrs], uv_n)[..., 0]
     back = (nbrs.rays_at(uv_n) * d_n[..., None] - t[:, None]) @ R  # neighbour → reference: Rᵀ (x − t)
-    uv_r, z_r = _project(back, ref)
+    uv_r, z_r = project_points(back, ref)
     shape = (len(nbrs), *depth_ref.shape)
     phi = (uv_r - ref.pixel_centres().reshape(1, -1, 2)).norm(dim=-1).reshape(shape)
     defined = (depth_ref > 0).reshape(1, -1) & (z_n > 0) & (d_n > 0) & (z_r > 0) & nbrs.inside(uv_n)
@@ -316,7 +316,8 @@ def depth_confirmation(depth: torch.Tensor, ref_grey: torch.Tensor, ref: CameraT
     return agrees, ncc, var_a[0] < FLAT_STD ** 2
 
 
-def _project(points: torch.Tensor, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
+def project_points(points: torch.Tensor, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
+    """(..., 3) points in ``cam``'s frame → pixel coordinates (..., 2) and z (...)."""
     z = points[..., 2]
     zs = torch.where(z.abs() > 1e-8, z, torch.full_like(z, 1e-8))
     uv = torch.stack([cam.fx * points[..., 0] / zs + cam.cx, cam.fy * points[..., 1] / zs + cam.cy], -1)
