@@ -163,7 +163,8 @@ def loss_terms(trainer: Trainer, s: JointSettings, neighbours: list[list[int]], 
         visible = out.visible
         if s.scale_weight and visible.any():
             t["scale"] = s.scale_weight * trainer.model.scales[visible].amin(-1).mean()
-        if s.opacity_weight and visible.any():
+        lowering = not s.opacity_while_densifying or step < s.densify.refine_stop
+        if s.opacity_weight and lowering and visible.any():
             lowered = visible
             if priors is not None and s.opacity_spare:
                 lowered = visible & ~on_prior_surface(trainer.model, view, priors, s.opacity_spare)

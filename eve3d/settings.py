@@ -460,6 +460,10 @@ class JointSettings(TrainSettings):
     A Gaussian whose colour matches what lies behind it (black on a black background) gets no
     photometric gradient, and this lowers its opacity until it is pruned; any Gaussian the
     photos need outweighs it. 0 = off."""
+    opacity_while_densifying: bool = False
+    """Stop the opacity loss where densification stops (``densify.refine_stop``): it lowers
+    the floaters while pruning can still remove them; later it would only thin the surfaces
+    (against a black background the colour makes up for the lost alpha)."""
     opacity_spare: float = setting(0.0, ge=0)
     """Methods with priors: the opacity loss spares the Gaussians whose centre lies within this
     relative depth of the confident prior at its pixel (on a measured surface), so it lowers
