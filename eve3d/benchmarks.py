@@ -9,7 +9,7 @@ checks here only look for files (planning runs them on every run); the ones that
 cameras and the ground truth run in the workflow's ``check_ground_truth`` job, before any
 training (``eve3d.evaluate.Protocol.check_ground_truth``).
 
-The trees each layout expects (README, "Benchmarks")::
+The trees each layout expects (docs/benchmarks.md)::
 
     dtu:        {root}/scan24/{images or image, mask, cameras.npz[, sparse/0]}   2DGS / NeuS / IDR release
                 {root}/Points/stl/stl024_total.ply                                official DTU evaluation

@@ -294,12 +294,12 @@ def _benchmark_workflow(a: argparse.Namespace) -> dict:
     """Run the workflow of a benchmark's config (unless --report-only); its resolved config."""
     import subprocess
 
-    from eve3d.config import REPO, load_config
+    from eve3d.config import SNAKEFILE, load_config
     from eve3d.layout import Layout
 
     config = load_config(a.config)
     if not a.report_only:
-        cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--configfile", a.config,
+        cmd = [sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), "--configfile", a.config,
                "--replace-workflow-config", f"-c{a.cores}", "--quiet", "rules", "progress"]
         if subprocess.run(cmd).returncode != 0:
             raise Eve3dError(f"the workflow of {a.config} failed (its logs: {Layout(config['results']).logs()}/)")

@@ -16,6 +16,7 @@ import yaml
 from eve3d.scene import Eve3dError
 
 REPO = Path(__file__).resolve().parent.parent
+SNAKEFILE = REPO / "workflow" / "Snakefile"
 SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
 PRESETS = REPO / "config" / "presets"
 

@@ -164,7 +164,7 @@ class Layout:
         return self.root / REPORT_DIR
 
     def report(self) -> Path:
-        """The self-contained HTML report ``snakemake --report`` writes (README)."""
+        """The self-contained HTML report ``snakemake --report`` writes (docs/benchmarks.md)."""
         return self.root / REPORT_FILE
 
 

@@ -73,9 +73,9 @@ REGISTRY: dict[str, Method] = {m.name: m for m in (
            settings={"init": "priors", "priors": "learnable", "geo_weight": 0.0, "ncc_weight": 0.0}),
     # Measured on every generated kind (docs/results.md, "Eve3D against PGSR, honestly
     # started"): with stereo priors the prior-point start and the LBA cost F, PGSR's start
-    # and rendered-neighbour terms do not; README, "Choices", says why.
+    # and rendered-neighbour terms do not; docs/method.md, "Choices", says why.
     # The opacity loss runs while densification prunes: it removes the floaters, and stops
-    # before it only thins the surfaces (README, "Choices").
+    # before it only thins the surfaces (docs/method.md, "Choices").
     Method("eve3d", "Eve3D as measured best here: PGSR's start and multi-view terms, L_prior towards learnable"
            " priors D̂ (initialised from D*) with L_pull, an opacity loss while densifying; no LBA (eve3d-paper"
            " has it)",

@@ -398,7 +398,7 @@ class TrainSettings(RenderSettings):
     are discs in the plane of their 8 nearest points, this thin along its normal (a
     fraction of the in-plane scale); 1 = 3DGS's isotropic balls. Balls, split in 3D while
     they are still round, leave a cloud in front of and behind each surface whose front
-    layer is what renders: depth 0.2–0.7 % too near (README, Choices)."""
+    layer is what renders: depth 0.2–0.7 % too near (docs/method.md, Choices)."""
     init_random_points: int = setting(100_000, ge=1)
     """Random initial points when the scene has no sparse points (``init: sparse``)."""
     init_drop_isolated: bool = False

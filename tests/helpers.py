@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from eve3d.config import SNAKEFILE  # this checkout's workflow, which the tests run
+
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -22,8 +24,8 @@ def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
 
 
 def snakemake(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
-    """Run this checkout's workflow (``Snakefile``) with ``args``."""
-    return subprocess.run([sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), *args],
+    """Run this checkout's workflow (``workflow/Snakefile``) with ``args``."""
+    return subprocess.run([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), *args],
                           capture_output=True, text=True, cwd=cwd)
 
 

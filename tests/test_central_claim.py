@@ -39,7 +39,7 @@ def test_eve3d_final_priors_are_closer_to_the_exact_depth_than_the_sgbm_priors(t
     0.79–0.81 % on 105,229–105,314 pixels (D̂ on its own confident pixels: 0.69–0.72 %);
     the test took 19–20 s. A standalone run of the same pipeline with 200 joint iterations
     (T_joint 70, no densification) ended at D̂ 1.16 % against D* 2.13 %; the full cpu
-    preset at the default size (32 views, 320×240) gives D* 0.90 % and D̂ 0.16 % (README,
+    preset at the default size (32 views, 320×240) gives D* 0.90 % and D̂ 0.16 % (docs/results.md,
     each on its own confident pixels).
 
     The same through the CLI: ``eve3d synth object DATA --views 12 --width 160 --height 120``,

@@ -164,7 +164,7 @@ def test_killed_training_reruns_to_the_same_result(tmp_path):
 
     from eve3d.gaussians import GaussianModel
     from eve3d.layout import Layout
-    from tests.helpers import REPO, snakemake, write_config
+    from tests.helpers import REPO, SNAKEFILE, snakemake, write_config
 
     short = {"refine_start": 10, "refine_every": 10, "refine_stop": 40, "reset_every": 0}
     runs = {}
@@ -182,7 +182,7 @@ def test_killed_training_reruns_to_the_same_result(tmp_path):
 
     layout = Layout(tmp_path / "killed/results")
     checkpoint = layout.method("tiny", "pgsr") / "checkpoint.pt"
-    run = subprocess.Popen([sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), target("killed"),
+    run = subprocess.Popen([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), target("killed"),
                             *command, str(runs["killed"])], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
     while not checkpoint.exists() and run.poll() is None and time.monotonic() < deadline:

@@ -10,7 +10,7 @@ import yaml
 from eve3d.scene import Eve3dError
 from eve3d.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings,
                             from_mapping, pick)
-from tests.helpers import REPO
+from tests.helpers import REPO, SNAKEFILE
 
 # Blocks every import of torch in the interpreter it is put in front of.
 NO_TORCH = """
@@ -35,7 +35,7 @@ def test_settings_and_planning_need_no_torch(tmp_path):
     assert r.returncode != 0 and "blocked" in r.stderr  # the block works
     r = _without_torch(tmp_path, "-c", "import eve3d.settings, eve3d.config; print('ok')")
     assert r.returncode == 0 and "ok" in r.stdout, r.stderr
-    r = _without_torch(tmp_path, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "-n", "--config",
+    r = _without_torch(tmp_path, "-m", "snakemake", "-s", str(SNAKEFILE), "-n", "--config",
                        f"results={tmp_path / 'results'}")
     assert r.returncode == 0, r.stderr[-3000:]
     assert "joint" in r.stdout and "evaluate" in r.stdout
@@ -170,7 +170,7 @@ def test_the_workflow_passes_each_job_its_sections_as_one_argument(tmp_path):
     import json
     import shlex
 
-    r = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "-n", "-p", "--config",
+    r = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), "-n", "-p", "--config",
                         f"results={tmp_path / 'results'}"], capture_output=True, text=True, cwd=REPO)
     assert r.returncode == 0, r.stderr[-3000:]
     commands = [line for line in r.stdout.splitlines() if " -m eve3d " in line and " summary " not in line]

@@ -1,5 +1,5 @@
 """Submission to a real Slurm: a one-node cluster of Debian's slurm-wlm and munge, started
-on this machine, runs the tiny scene through ``workflow/profiles/slurm``; the plugin's
+on this machine, runs the tiny scene through ``profiles/slurm``; the plugin's
 ``sbatch`` lines say what each job asked for."""
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import yte
 
-from tests.helpers import REPO, write_config
+from tests.helpers import REPO, SNAKEFILE, write_config
 
 DAEMONS = ("munged", "slurmctld", "slurmd")
 CLIENTS = ("sbatch", "squeue", "sinfo", "srun")
@@ -152,7 +152,7 @@ def test_tiny_scene_runs_through_the_slurm_profile(slurm_cluster, tmp_path):
                        # leave stereo-tsdf nothing to fuse, and this test is about the cluster
                        stereo={"min_alpha": 0.0})
     env = {**slurm_cluster, "EVE3D_SLURM_PARTITION": "eve3dtest", "EVE3D_SLURM_GPU_MODEL": ""}
-    r = subprocess.run(["snakemake", "-s", str(REPO / "Snakefile"), "--profile", str(REPO / "workflow/profiles/slurm"),
+    r = subprocess.run(["snakemake", "-s", str(SNAKEFILE), "--profile", str(REPO / "profiles/slurm"),
                         "--configfile", str(cfg), "--replace-workflow-config", "--slurm-status-command", "squeue",
                         "--slurm-init-seconds-before-status-checks", "1", "--latency-wait", "5", "--jobs", "4",
                         "--retries", "0", "--omit-from", "report_pages", "--slurm-logdir", str(tmp_path / "slurm_logs"), "--verbose",
@@ -171,7 +171,7 @@ def test_tiny_scene_runs_through_the_slurm_profile(slurm_cluster, tmp_path):
     gpu = {"pretrain", "stereo_render", "joint"}  # the sgbm and oracle priors need none
     assert set(requests) == gpu | {"synth", "stereo_depth", "mesh", "evaluate", "summary"}
     assert len(requests["mesh"]) == len(requests["evaluate"]) == 3 and len(requests["stereo_depth"]) == 2
-    profile = yte.process_yaml(open(REPO / "workflow/profiles/slurm/config.yaml"), require_use_yte=True)
+    profile = yte.process_yaml(open(REPO / "profiles/slurm/config.yaml"), require_use_yte=True)
     for rule, jobs in requests.items():
         for asked in jobs:
             assert asked["-p"] == "eve3dtest", (rule, asked)

@@ -95,7 +95,7 @@ def test_default_config_dry_run_lists_every_stage(tmp_path):
 
 
 def test_slurm_profile_dry_runs_without_slurm(tmp_path):
-    r = snakemake("-n", "--profile", str(REPO / "workflow/profiles/slurm"), "--config", f"results={tmp_path}")
+    r = snakemake("-n", "--profile", str(REPO / "profiles/slurm"), "--config", f"results={tmp_path}")
     assert r.returncode == 0, r.stderr[-3000:]
 
 

@@ -6,7 +6,8 @@ import shlex
 import sys
 from pathlib import Path
 
-sys.path.insert(0, workflow.basedir)
+REPO = str(Path(workflow.basedir).parent)  # workflow/Snakefile: the checkout whose package the jobs run
+sys.path.insert(0, REPO)
 from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_protocol, scene_sections, scene_value,
                           stage_settings)
 from eve3d.io.loader import has_poses
@@ -63,8 +64,8 @@ for _scene in SCENES:  # a scene's own train keys go over the section
 # Jobs run `python -m eve3d`: the interpreter that runs Snakemake (a venv) comes first on
 # PATH, a conda env (--use-conda) prepends its own; PYTHONPATH finds this checkout's package.
 os.environ["PATH"] = os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", "")
-EVE3D = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPATH}} python -m eve3d"
-CONDA_ENV = "../../envs/eve3d.yaml"
+EVE3D = f"PYTHONPATH={shlex.quote(REPO)}${{PYTHONPATH:+:$PYTHONPATH}} python -m eve3d"
+CONDA_ENV = "../envs/eve3d.yaml"
 
 wildcard_constraints:
     scene="|".join(map(re.escape, SCENES)) if SCENES else "$^",
@@ -72,7 +73,7 @@ wildcard_constraints:
 
 
 # What a cluster job asks for beyond the profile's time, memory and cores
-# (workflow/profiles/slurm): one GPU where its stage runs on one, of the site's model where
+# (profiles/slurm): one GPU where its stage runs on one, of the site's model where
 # EVE3D_SLURM_GPU_MODEL names it. A local run ignores these.
 GPU_MODEL = os.environ.get("EVE3D_SLURM_GPU_MODEL", "")
 

@@ -42,10 +42,13 @@ rule summary:
         novel_views=pretrain_metrics(),
     output:
         LAYOUT.summary(),
+    log:
+        LAYOUT.logs() / "summary.log",
     conda:
         CONDA_ENV
     shell:
-        "{EVE3D} summary {input.metrics} {input.novel_views} --out {output}"
+        # the table goes to the terminal (make demo prints it), anything else to the log
+        "{EVE3D} summary {input.metrics} {input.novel_views} --out {output} 2> {log}"
 
 
 rule report_pages:
@@ -71,3 +74,25 @@ rule report_pages:
         CONDA_ENV
     shell:
         "{EVE3D} report --results {params.results} --out {params.out} {params.args} > {log} 2>&1"
+
+
+def report_failures(log):
+    """The workflow's onerror: failed jobs (with --keep-going the other scenes went on). The
+    summary and the report list each scene and method left without metrics, with its job's
+    first error line and log (``log``: Snakemake's log file)."""
+    import subprocess
+    from eve3d.failures import failed_jobs, failed_rows, write_failures
+
+    failed = failed_rows(LAYOUT, [(s, m) for s in SCENES for m in scene_methods(s)], failed_jobs(log))
+    write_failures(LAYOUT.failures(), failed)
+    metrics = [Path(p) for p in metrics_files() + pretrain_metrics() if Path(p).exists()]
+    subprocess.run(f"{EVE3D} summary {' '.join(shlex.quote(str(p)) for p in metrics)} --failed {LAYOUT.failures()}"
+                   f" --out {LAYOUT.summary()}", shell=True)
+    if LAYOUT.summary().exists() and metrics:  # dated before its inputs, so that the next run redoes it
+        before = min(p.stat().st_mtime for p in metrics) - 1
+        os.utime(LAYOUT.summary(), (before, before))
+    subprocess.run(f"{EVE3D} report --results {LAYOUT.root} --out {LAYOUT.report_pages()} {report_args(None)}"
+                   f" > {LAYOUT.logs() / 'report_pages.log'} 2>&1", shell=True)
+    for row in failed:
+        print(f"failed: {row['scene']} {row['method']}: {row['failed']} (log: {row['log']})", file=sys.stderr)
+    print(f"summary: {LAYOUT.summary()}; report pages: {LAYOUT.report_pages()}", file=sys.stderr)
