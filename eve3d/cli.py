@@ -11,8 +11,8 @@ from pathlib import Path
 from collections.abc import Callable
 from typing import Any
 
+from eve3d.core.scene import Eve3dError
 from eve3d.report import SUMMARY_COLUMNS
-from eve3d.scene import Eve3dError
 
 
 def _config(a: argparse.Namespace) -> dict:
@@ -34,7 +34,7 @@ def _settings(a: argparse.Namespace, cls: type, section: str, config: dict | Non
 
 def _naming_flags(a: argparse.Namespace, build: Callable[[], Any]) -> Any:
     """``build()``, its error about a key that a flag of ``a`` gave naming that flag too."""
-    from eve3d.settings import flag
+    from eve3d.core.settings import flag
 
     try:
         return build()
@@ -47,7 +47,7 @@ def _naming_flags(a: argparse.Namespace, build: Callable[[], Any]) -> Any:
 
 
 def _cmd_synth(a: argparse.Namespace) -> None:
-    from eve3d.settings import SyntheticSettings
+    from eve3d.core.settings import SyntheticSettings
     from eve3d.synth import generate
 
     s = _settings(a, SyntheticSettings, "synthetic")
@@ -57,7 +57,7 @@ def _cmd_synth(a: argparse.Namespace) -> None:
 
 
 def _cmd_sfm(a: argparse.Namespace) -> None:
-    from eve3d.settings import SfmSettings
+    from eve3d.core.settings import SfmSettings
     from eve3d.sfm import run_sfm
 
     run_sfm(Path(a.dataset), Path(a.out), _settings(a, SfmSettings, "sfm"))
@@ -65,8 +65,8 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
-    from eve3d.io import load_scene
-    from eve3d.settings import BaselineSettings, PretrainSettings, RenderSettings, StereoSettings, pick
+    from eve3d.core.io import load_scene
+    from eve3d.core.settings import BaselineSettings, PretrainSettings, RenderSettings, StereoSettings, pick
     from eve3d.stereo import render_right_views
 
     config = _config(a)
@@ -78,8 +78,8 @@ def _cmd_stereo_render(a: argparse.Namespace) -> None:
 
 
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
-    from eve3d.io import load_scene
-    from eve3d.settings import MatchCheck, SgbmSettings, StereoSettings, pick
+    from eve3d.core.io import load_scene
+    from eve3d.core.settings import MatchCheck, SgbmSettings, StereoSettings, pick
 
     scene = load_scene(a.scene)
     s = _settings(a, StereoSettings, "stereo")
@@ -132,9 +132,9 @@ def _cmd_export_stereo(a: argparse.Namespace) -> None:
 
 
 def _cmd_pretrain(a: argparse.Namespace) -> None:
-    from eve3d.io import load_scene
+    from eve3d.core.io import load_scene
+    from eve3d.core.settings import PretrainSettings
     from eve3d.pretrain import pretrain
-    from eve3d.settings import PretrainSettings
 
     metrics = pretrain(load_scene(a.scene), Path(a.out), _settings(a, PretrainSettings, "pretrain"))
     held = metrics["held_out"]
@@ -145,7 +145,7 @@ def _cmd_pretrain(a: argparse.Namespace) -> None:
 
 def _cmd_joint(a: argparse.Namespace) -> None:
     from eve3d.config import method_settings
-    from eve3d.io import load_scene
+    from eve3d.core.io import load_scene
     from eve3d.joint import train_joint
 
     config = _config(a)
@@ -156,10 +156,10 @@ def _cmd_joint(a: argparse.Namespace) -> None:
 
 
 def _cmd_mesh(a: argparse.Namespace) -> None:
-    from eve3d.io import load_scene
-    from eve3d.layout import MESH_VIEWS_DIR
+    from eve3d.core.io import load_scene
+    from eve3d.core.layout import MESH_VIEWS_DIR
+    from eve3d.core.settings import MeshSettings
     from eve3d.mesh import check_mesh_path, extent_report, fuse, write_mesh, write_mesh_views
-    from eve3d.settings import MeshSettings
 
     check_mesh_path(Path(a.out))
     settings = _settings(a, MeshSettings, "mesh")
@@ -177,10 +177,10 @@ def _cmd_mesh(a: argparse.Namespace) -> None:
 
 
 def _cmd_evaluate(a: argparse.Namespace) -> None:
+    from eve3d.core.fileio import atomic_path
+    from eve3d.core.io import load_scene
+    from eve3d.core.settings import EvalSettings, MeshSettings
     from eve3d.evaluate import PROTOCOLS, EvalInputs, protocol_for
-    from eve3d.fileio import atomic_path
-    from eve3d.io import load_scene
-    from eve3d.settings import EvalSettings, MeshSettings
 
     config = _config(a)
     settings = _settings(a, EvalSettings, "evaluate", config)
@@ -227,7 +227,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     if "tau" in metrics:
         print(f"tau = {metrics['tau']:.5g} ({metrics['tau_rule']})")
     metrics.update({"scene": a.scene_name, "method": a.method} if a.scene_name else {})
-    from eve3d.layout import EVALUATION, RECORD
+    from eve3d.core.layout import EVALUATION, RECORD
 
     with atomic_path(Path(a.out)) as tmp:
         tmp.write_text(json.dumps({RECORD: EVALUATION, **metrics}, indent=2))
@@ -235,7 +235,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
 
 
 def _cmd_bench(a: argparse.Namespace) -> None:
-    from eve3d import bench
+    from eve3d.tools import bench
 
     sizes = bench.RASTERIZER_SIZES
     if a.sizes:
@@ -250,7 +250,7 @@ def _cmd_bench(a: argparse.Namespace) -> None:
 
 
 def _cmd_bench_training(a: argparse.Namespace) -> None:
-    from eve3d import bench
+    from eve3d.tools import bench
 
     for name in ("steps", "warmup", "gaussians"):
         if getattr(a, name) < (0 if name == "warmup" else 1):
@@ -261,7 +261,7 @@ def _cmd_bench_training(a: argparse.Namespace) -> None:
 
 
 def _cmd_bench_stereo(a: argparse.Namespace) -> None:
-    from eve3d import bench
+    from eve3d.tools import bench
 
     priors, agreement = [], []
     for folder in map(Path, a.priors):
@@ -269,8 +269,8 @@ def _cmd_bench_stereo(a: argparse.Namespace) -> None:
         if oracle.is_dir():
             priors.append(bench.prior_accuracy(folder, oracle, label))
         elif a.scene:
+            from eve3d.core.io import load_scene
             from eve3d.evaluate.depth import prior_agreement
-            from eve3d.io import load_scene
 
             agreement.append({**prior_agreement(load_scene(a.scene, check_images=False), folder), "data": label})
         else:
@@ -282,7 +282,7 @@ def _cmd_bench_stereo(a: argparse.Namespace) -> None:
 
 
 def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
-    from eve3d import bench
+    from eve3d.tools import bench
 
     if a.meshes and not (a.scene and a.gt):
         raise Eve3dError("--meshes needs --scene (the cameras) and --gt (the GT mesh)")
@@ -295,7 +295,7 @@ def _benchmark_workflow(a: argparse.Namespace) -> dict:
     import subprocess
 
     from eve3d.config import SNAKEFILE, load_config
-    from eve3d.layout import Layout
+    from eve3d.core.layout import Layout
 
     config = load_config(a.config)
     if not a.report_only:
@@ -307,7 +307,7 @@ def _benchmark_workflow(a: argparse.Namespace) -> dict:
 
 
 def _cmd_bench_methods(a: argparse.Namespace) -> None:
-    from eve3d import bench
+    from eve3d.tools import bench
 
     report = bench.methods_report(_benchmark_workflow(a))
     print(json.dumps(report, indent=2) if a.json else bench.format_methods_report(report))
@@ -316,9 +316,9 @@ def _cmd_bench_methods(a: argparse.Namespace) -> None:
 def _cmd_bench_standin(a: argparse.Namespace) -> None:
     import tempfile
 
-    from eve3d.io import load_scene
-    from eve3d.standin import STANDIN_SCENE, write_standin
+    from eve3d.core.io import load_scene
     from eve3d.synth import generate
+    from eve3d.tools.standin import STANDIN_SCENE, write_standin
 
     root, name = Path(a.root), STANDIN_SCENE[a.benchmark]
     if (root / name).exists():
@@ -332,7 +332,7 @@ def _cmd_bench_standin(a: argparse.Namespace) -> None:
 
 
 def _cmd_bench_real(a: argparse.Namespace) -> None:
-    from eve3d import bench
+    from eve3d.tools import bench
 
     report = bench.real_report(_benchmark_workflow(a))
     print(json.dumps(report, indent=2) if a.json else bench.format_real_report(report))
@@ -341,7 +341,7 @@ def _cmd_bench_real(a: argparse.Namespace) -> None:
 def _cmd_bench_scale(a: argparse.Namespace) -> None:
     import tempfile
 
-    from eve3d import bench
+    from eve3d.tools import bench
 
     mode = "memory" if a.memory else "pipeline"
     views, width, height = bench.SCALE_SIZE[mode]
@@ -379,7 +379,7 @@ VIEW_COLUMNS = ("scene", "stage", "views", "psnr", "ssim")
 
 
 def _cmd_summary(a: argparse.Namespace) -> None:
-    from eve3d.layout import EVALUATION, METRICS_FILE, RECORD, TRAIN_METRICS_FILE, TRAINING, locate
+    from eve3d.core.layout import EVALUATION, METRICS_FILE, RECORD, TRAIN_METRICS_FILE, TRAINING, locate
 
     rows, view_rows = [], []
     for path in map(Path, a.metrics):
@@ -400,7 +400,7 @@ def _cmd_summary(a: argparse.Namespace) -> None:
         m.setdefault("scene", scene)
         m.setdefault("method", stage)
         rows.append(m)
-    if a.failed:  # rows of a workflow that ended with failed jobs (eve3d.failures)
+    if a.failed:  # rows of a workflow that ended with failed jobs (eve3d.core.failures)
         try:
             rows += json.loads(Path(a.failed).read_text())
         except (OSError, json.JSONDecodeError) as e:
@@ -417,9 +417,9 @@ def _cmd_summary(a: argparse.Namespace) -> None:
 
 
 def _cmd_report(a: argparse.Namespace) -> None:
-    from eve3d.layout import Layout
+    from eve3d.core.layout import Layout
+    from eve3d.core.settings import StereoSettings
     from eve3d.report import write_report
-    from eve3d.settings import StereoSettings
 
     datasets = {}
     for item in a.dataset:
@@ -434,7 +434,7 @@ def _cmd_report(a: argparse.Namespace) -> None:
 
 
 def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
-    from eve3d.fileio import atomic_path
+    from eve3d.core.fileio import atomic_path
 
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="") as f:
@@ -466,9 +466,9 @@ def _preset() -> dict:
 def _settings_flags(group, cls: type, section: str, only: tuple[str, ...] = (), skip: tuple[str, ...] = ()) -> None:
     """One flag per field of a settings class, a shorthand of ``--set SECTION.KEY=VALUE``:
     its name, kind, choices and help (the field's first docstring sentence and its default
-    under the cpu preset) come from ``eve3d.settings``."""
+    under the cpu preset) come from ``eve3d.core.settings``."""
     from eve3d.config import TRAINING_SECTIONS
-    from eve3d.settings import flag, keys
+    from eve3d.core.settings import flag, keys
 
     preset = _preset()
     shared = preset.get("train") or {} if section in TRAINING_SECTIONS else {}
@@ -535,7 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_data_parsers(sub) -> None:
-    from eve3d.settings import SfmSettings, SyntheticSettings
+    from eve3d.core.settings import SfmSettings, SyntheticSettings
     from eve3d.synth import KINDS
 
     s = _stage(sub, "synth", _cmd_synth, "generate a synthetic scene with exact ground truth",
@@ -550,7 +550,7 @@ def _add_data_parsers(sub) -> None:
 
 
 def _add_stereo_parsers(sub) -> None:
-    from eve3d.settings import BaselineSettings, MatchCheck, RenderSettings, SgbmSettings, StereoSettings
+    from eve3d.core.settings import BaselineSettings, MatchCheck, RenderSettings, SgbmSettings, StereoSettings
 
     s = _stage(sub, "stereo-render", _cmd_stereo_render,
                "right views of virtual stereo pairs, rendered by the pretrained model",
@@ -581,8 +581,8 @@ def _add_stereo_parsers(sub) -> None:
 
 
 def _add_training_parsers(sub) -> None:
-    from eve3d.methods import methods
-    from eve3d.settings import JointSettings, PretrainSettings
+    from eve3d.core.methods import methods
+    from eve3d.core.settings import JointSettings, PretrainSettings
 
     s = _stage(sub, "pretrain", _cmd_pretrain, "short photometric 3DGS fit (Mini-Splatting style) → point_cloud.ply",
                (PretrainSettings, "pretrain"))
@@ -601,8 +601,8 @@ def _add_mesh_parsers(sub) -> None:
     from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS, WITHOUT_GT
     from typing import get_args
 
-    from eve3d.scene import SceneKind
-    from eve3d.settings import EvalSettings, MeshSettings
+    from eve3d.core.scene import SceneKind
+    from eve3d.core.settings import EvalSettings, MeshSettings
 
     s = _stage(sub, "mesh", _cmd_mesh, "TSDF-fuse per-view depth maps into mesh.ply", (MeshSettings, "mesh"))
     s.add_argument("--scene", required=True)
@@ -634,7 +634,7 @@ def _add_mesh_parsers(sub) -> None:
 
 
 def _add_bench_parser(sub) -> None:
-    from eve3d.settings import RENDER_BACKENDS
+    from eve3d.core.settings import RENDER_BACKENDS
     from eve3d.synth import KINDS
 
     s = sub.add_parser("bench", help="speed and memory benchmarks (print a table)")
@@ -671,7 +671,7 @@ def _add_bench_parser(sub) -> None:
     ev.add_argument("--gt", help="GT mesh of the given meshes")
     ev.add_argument("--json", action="store_true", help="machine-readable output")
     ev.set_defaults(func=_cmd_bench_evaluate)
-    from eve3d.benchmarks import BENCHMARKS
+    from eve3d.core.datasets import BENCHMARKS
 
     sd = what.add_parser("standin", help="a generated object written as a benchmark's download lays out one scene, "
                                          "with its ground-truth files: try or time a benchmark config without it")

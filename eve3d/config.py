@@ -1,5 +1,5 @@
 """Workflow configuration: preset merge, the schema's structure check, every section built by
-its settings class (``eve3d.settings``: defaults and bounds), clear errors.
+its settings class (``eve3d.core.settings``: defaults and bounds), clear errors.
 
 Precedence (low → high): the settings classes' defaults, ``config/presets/{preset}.yaml``,
 the user's config.
@@ -13,23 +13,14 @@ from typing import Any
 
 import yaml
 
-from eve3d.scene import Eve3dError
+from eve3d.core.scene import Eve3dError
+from eve3d.core.settings import deep_merge
 
 REPO = Path(__file__).resolve().parent.parent
 SNAKEFILE = REPO / "workflow" / "Snakefile"
 SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
 PRESETS = REPO / "config" / "presets"
 
-
-def deep_merge(base: dict, override: dict) -> dict:
-    """``override`` on top of ``base``, recursively for nested mappings."""
-    out = copy.deepcopy(base)
-    for key, value in override.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = deep_merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
 
 
 def _validator(schema: dict):
@@ -68,7 +59,7 @@ def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEM
     if errors:
         lines = [f"{'.'.join(map(str, e.absolute_path)) or '(top level)'}: {e.message}" for e in errors]
         raise Eve3dError(f"{source}: invalid configuration:\n  " + "\n  ".join(lines))
-    from eve3d.benchmarks import expand_benchmark
+    from eve3d.core.datasets import expand_benchmark
     from eve3d.synth import KINDS
 
     if config.get("only") is not None:  # run some of the scenes (a benchmark's downloaded ones)
@@ -88,12 +79,12 @@ def resolve_config(user: dict, source: str = "config", schema_path: Path = SCHEM
 
 
 def with_section_defaults(config: dict, source: str = "config") -> dict:
-    """Every section of ``eve3d.settings.SECTIONS`` built by its settings class (the one
+    """Every section of ``eve3d.core.settings.SECTIONS`` built by its settings class (the one
     place its defaults and bounds live) and written back whole; a scene's own ``synthetic``
     and ``evaluate`` keys are checked too. Errors name ``source`` and the key path."""
     import dataclasses
 
-    from eve3d.settings import SECTIONS, EvalSettings, SyntheticSettings, from_mapping
+    from eve3d.core.settings import SECTIONS, EvalSettings, SyntheticSettings, from_mapping
 
     try:
         for section, cls in SECTIONS.items():
@@ -125,8 +116,8 @@ def scene_protocol(name: str, scene: dict):
     its ``protocol`` key, else the default of its dataset format when any of that protocol's
     ground truth is given, else ``nvs`` (``eve3d.evaluate.protocol_for``); an error names the
     key when the protocol is unknown or the scene lacks what the protocol needs."""
+    from eve3d.core.io.loader import dataset_format, has_poses
     from eve3d.evaluate import protocol_for
-    from eve3d.io.loader import dataset_format, has_poses
 
     # A generated scene is a COLMAP dataset with exact poses that does not exist yet.
     fmt = "colmap" if "synthetic" in scene else dataset_format(Path(scene["path"]))
@@ -186,7 +177,7 @@ def job_config(spec: str | None = None, overrides: Sequence[str] = (), flags: Ma
     job the resolved sections it reads this way, with ``preset: null``) over its preset (``cpu``
     unless it names one), then the ``SECTION.KEY=VALUE`` overrides (``--set``, values parsed
     as YAML), then ``flags`` (the stage's own flags, by dotted key)."""
-    from eve3d.settings import SECTIONS
+    from eve3d.core.settings import SECTIONS
 
     config = with_preset(load_mapping(spec, "--config") if spec else {}, "--config")
     known = (*TRAINING_SECTIONS, *SECTIONS, "variants")
@@ -213,7 +204,7 @@ def stage_settings(cls: type, section: str, config: Mapping, overrides: dict | N
     """A stage's settings from a config: its ``section`` (a training stage's over the shared
     ``train`` section), then ``overrides`` (a method's settings) merged key by key, plus
     ``fixed``; built strictly by ``cls`` (errors name the key path)."""
-    from eve3d.settings import from_mapping
+    from eve3d.core.settings import from_mapping
 
     training = section in TRAINING_SECTIONS[1:]
     shared = config.get("train") or {} if training else {}
@@ -234,8 +225,8 @@ def method_settings(name: str, config: Mapping, where: str, **fixed: Any) -> Any
     """The joint stage's settings of the trained method ``name`` (a registered method or a
     variant of ``config``): ``train`` + ``joint``, the method's own settings over them, plus
     ``fixed``. ``where`` names the option that gave the name, for the errors."""
-    from eve3d.methods import method
-    from eve3d.settings import JointSettings
+    from eve3d.core.methods import method
+    from eve3d.core.settings import JointSettings
 
     m = method(name, config.get("variants") or {}, where)
     if not m.trains:

@@ -1,6 +1,6 @@
 """Joint stage (``eve3d joint``): train the Gaussians of one method and render its depth.
 
-One loss, whose parts the settings switch on and off; the methods (``eve3d.methods``) are
+One loss, whose parts the settings switch on and off; the methods (``eve3d.core.methods``) are
 named settings of it. In full (PGSR): L_rgb, the flattening loss on the smallest scale, the
 single-view depth–normal consistency from ``dn_from``, the multi-view geometric and NCC
 photometric losses over a rendered neighbour view from ``mv_from``, AbsGS's split, optional
@@ -22,23 +22,23 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from eve3d.fileio import atomic_dir, atomic_path, write_image
-from eve3d.gaussians import GaussianModel
-from eve3d.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
-from eve3d.losses import (CameraStack, depth_confirmation, depth_normal_loss, depth_to_normal, depth_to_points,
+from eve3d.core.fileio import atomic_dir, atomic_path, write_image
+from eve3d.core.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
+from eve3d.gaussians.model import GaussianModel
+from eve3d.gaussians.losses import (CameraStack, depth_confirmation, depth_normal_loss, depth_to_normal, depth_to_points,
                           forward_backward_error, geometric_loss, ncc_loss, project_points, rgb_loss)
-from eve3d.maps import save_maps
-from eve3d.methods import uses_priors
-from eve3d.neighbours import select_neighbours
+from eve3d.core.maps import save_maps
+from eve3d.core.methods import uses_priors
+from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.settings import JointSettings, RenderSettings
+from eve3d.gaussians.neighbours import select_neighbours
+from eve3d.gaussians.render import RenderOutput, render_model
+from eve3d.gaussians.render.projection import CameraTensors
+from eve3d.gaussians.train_state import TrainState
+from eve3d.gaussians.training import LossTerms, Trainer, initial_points
+from eve3d.gaussians.view_report import view_metrics, write_previews
+from eve3d.gaussians.views import View, Views
 from eve3d.priors.learnable import Priors, comparison_preview, filled_log_depth, load_priors, prior_points
-from eve3d.render import RenderOutput, render_model
-from eve3d.render.projection import CameraTensors
-from eve3d.scene import Eve3dError, Scene
-from eve3d.settings import JointSettings, RenderSettings
-from eve3d.train_state import TrainState
-from eve3d.training import LossTerms, Trainer, initial_points
-from eve3d.view_report import view_metrics, write_previews
-from eve3d.views import View, Views
 
 
 def multiview_terms(ref: View, nbrs: list[View], depth: torch.Tensor, normal: torch.Tensor, distance: torch.Tensor,

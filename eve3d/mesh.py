@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eve3d import chunking
-from eve3d.chunking import chunks
-from eve3d.fileio import atomic_path
-from eve3d.photos import read_view
-from eve3d.maps import load_maps, map_camera
-from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.settings import MeshSettings
+from eve3d.core import chunking
+from eve3d.core.chunking import chunks
+from eve3d.core.fileio import atomic_path
+from eve3d.core.maps import load_maps, map_camera
+from eve3d.core.photos import read_view
+from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.settings import MeshSettings
 
 BLOCK_RESOLUTION = 8
 MAX_BLOCKS = 2**31 // (BLOCK_RESOLUTION**3 * 16)
@@ -50,7 +50,7 @@ def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
 
 def _row_bands(cam: Camera, multiple: int = 1) -> Iterator[slice]:
     """Bands of ``cam``'s image rows, each starting at a multiple of ``multiple``, of about a
-    quarter of a chunk of pixels (:mod:`eve3d.chunking`): a band's back-projection is a few
+    quarter of a chunk of pixels (:mod:`eve3d.core.chunking`): a band's back-projection is a few
     MB, a 1920×1080 image's about 50 MB a float64 array, of which it makes several."""
     return chunks(cam.height, max(multiple, chunking.CHUNK // 4 // cam.width // multiple * multiple))
 
@@ -440,7 +440,7 @@ def view_cameras(mesh, scene: Scene, size: int = 640) -> list[Camera]:
 def shaded(mesh, cam: Camera) -> np.ndarray:
     """RGB uint8 of the mesh seen by ``cam``, ray-cast on the CPU: clay-coloured Lambert
     shading under a light above and to the left of the camera, white background."""
-    from eve3d.raycast import MeshRaycaster
+    from eve3d.core.raycast import MeshRaycaster
 
     hits = MeshRaycaster([mesh]).cast(cam)
     light = cam.R.T @ np.array([-0.4, -0.6, -1.0])
@@ -452,7 +452,7 @@ def shaded(mesh, cam: Camera) -> np.ndarray:
 
 def write_mesh_views(mesh, scene: Scene, out_dir: Path, size: int = 640) -> list[Path]:
     """:func:`shaded` renders from :func:`view_cameras` as ``out_dir/{view}.png``."""
-    from eve3d.fileio import write_image
+    from eve3d.core.fileio import write_image
 
     paths = []
     for cam in view_cameras(mesh, scene, size):

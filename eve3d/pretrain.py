@@ -23,16 +23,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eve3d.fileio import atomic_path
-from eve3d.gaussians import GaussianModel
-from eve3d.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
-from eve3d.render import render_model
-from eve3d.scene import Scene
-from eve3d.settings import PretrainSettings, RenderSettings
-from eve3d.stereo import TONE_FILE, scene_tone_curve
-from eve3d.training import LossTerms, Trainer, initial_points
-from eve3d.view_report import view_metrics, write_previews
-from eve3d.views import View
+from eve3d.core.fileio import atomic_path
+from eve3d.core.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TONE_FILE, TRAIN_METRICS_FILE, TRAINING
+from eve3d.core.photos import scene_tone_curve
+from eve3d.core.scene import Scene
+from eve3d.core.settings import PretrainSettings, RenderSettings
+from eve3d.gaussians.model import GaussianModel
+from eve3d.gaussians.render import render_model
+from eve3d.gaussians.training import LossTerms, Trainer, initial_points
+from eve3d.gaussians.view_report import view_metrics, write_previews
+from eve3d.gaussians.views import View
 
 
 @torch.no_grad()

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, Layout, benchmark_seconds
+from eve3d.core.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, Layout, benchmark_seconds
 
 METRICS_CHARTED = (("fscore", "F-score (higher is better)"), ("chamfer", "Chamfer distance (lower is better)"),
                    ("psnr", "held-out PSNR in dB (higher is better)"))
@@ -102,7 +102,7 @@ def _pyplot():
 
 def _save(fig, out: Path, **options) -> None:
     """``fig`` as a PNG at ``out``, written atomically, then closed."""
-    from eve3d.fileio import atomic_path
+    from eve3d.core.fileio import atomic_path
 
     with atomic_path(out) as tmp:
         fig.savefig(tmp, format="png", **options)
@@ -203,7 +203,7 @@ def scene_panels(layout: Layout, scene: str, method: str, photo: Path | None, ba
 
 def scene_sheet(panels: list[tuple[str, object]], title: str, out: Path) -> None:
     """The panels side by side, two rows when there are many."""
-    from eve3d.fileio import read_image
+    from eve3d.core.fileio import read_image
 
     cols = min(4, max(1, len(panels)))
     rows = max(1, -(-len(panels) // cols))
@@ -227,9 +227,9 @@ def scene_sheet(panels: list[tuple[str, object]], title: str, out: Path) -> None
 def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backend: str,
                  benchmark: str | None = None) -> list[Path]:
     """Every page of the module docstring under ``out``; the files written."""
-    from eve3d.benchmarks import BENCHMARKS
-    from eve3d.fileio import atomic_path
-    from eve3d.io import load_scene
+    from eve3d.core.datasets import BENCHMARKS
+    from eve3d.core.fileio import atomic_path
+    from eve3d.core.io import load_scene
 
     rows = read_rows(layout.summary())
     published = BENCHMARKS[benchmark].published_rows() if benchmark else []

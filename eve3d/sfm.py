@@ -1,6 +1,6 @@
 """SfM stage (``eve3d sfm``): images → undistorted PINHOLE COLMAP model, with pycolmap.
 
-The photos are imported first (``eve3d.photos``: upright, longest side at most
+The photos are imported first (``eve3d.core.photos``: upright, longest side at most
 ``sfm.max_image_size``, unreadable files skipped with a warning), then SIFT extraction (one
 shared camera by default, one per size when the photos differ), exhaustive or sequential
 matching, incremental mapping, undistortion. A dataset that already has a COLMAP model with
@@ -13,14 +13,12 @@ import json
 import shutil
 from pathlib import Path
 
-import numpy as np
-
-from eve3d.fileio import atomic_dir
-from eve3d.io.colmap import import_pycolmap
-from eve3d.io.loader import METADATA, find_colmap_model
-from eve3d.photos import import_photos, scan_photos, write_pyramid
-from eve3d.scene import Camera, Eve3dError
-from eve3d.settings import SfmSettings
+from eve3d.core.fileio import atomic_dir
+from eve3d.core.io.colmap import find_colmap_model, import_pycolmap
+from eve3d.core.io.loader import METADATA
+from eve3d.core.photos import import_photos, scan_photos, write_pyramid
+from eve3d.core.scene import Eve3dError
+from eve3d.core.settings import SfmSettings
 
 
 def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Path:
@@ -98,56 +96,3 @@ def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
     return model_dir
 
 
-def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, s: SfmSettings | None = None
-                            ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Sparse points as SfM gives them to a user whose poses are known (DTU, a generated
-    scene): SIFT features of the photos in ``image_dir`` (named as the cameras), matched
-    (``s.matcher``) and triangulated by COLMAP's point triangulator with the cameras held
-    fixed, outliers and all. Returns the points (N, 3), their colours (N, 3) uint8 and each
-    point's views (indices into ``cameras``). ``work`` is scratch space (made, then removed)."""
-    pycolmap = import_pycolmap()
-
-    s = s or SfmSettings()
-    work.mkdir(parents=True)
-    db_path = work / "database.db"
-    names = [c.name for c in cameras]
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.max_image_size = s.max_image_size
-    extraction.num_threads = s.threads
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    pycolmap.set_random_seed(s.seed)
-    pycolmap.extract_features(str(db_path), str(image_dir), image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
-                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = s.threads
-    match = pycolmap.match_exhaustive if s.matcher == "exhaustive" else pycolmap.match_sequential
-    match(str(db_path), matching_options=matching, device=pycolmap.Device.cpu)
-    # the database's own ids, with our intrinsics and poses: the triangulator pairs them by id
-    index = {name: i for i, name in enumerate(names)}
-    known = pycolmap.Reconstruction()
-    db = pycolmap.Database.open(str(db_path))
-    try:
-        for image in db.read_all_images():
-            cam = cameras[index[image.name]]
-            camera = db.read_camera(image.camera_id)
-            camera.params = [cam.fx, cam.fy, cam.cx, cam.cy]
-            db.update_camera(camera)
-            known.add_camera_with_trivial_rig(camera)
-            keypoints = db.read_keypoints(image.image_id)[:, :2]
-            known.add_image_with_trivial_frame(
-                pycolmap.Image(name=image.name, keypoints=keypoints, camera_id=image.camera_id, image_id=image.image_id),
-                pycolmap.Rigid3d(np.hstack([cam.R, cam.t[:, None]])))
-    finally:
-        db.close()
-    options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = s.threads
-    options.random_seed = s.seed
-    result = pycolmap.triangulate_points(known, str(db_path), str(image_dir), str(work / "sparse"), options=options)
-    shutil.rmtree(work, ignore_errors=True)
-    by_id = {image_id: index[image.name] for image_id, image in result.images.items()}
-    points = sorted(result.points3D.items())
-    xyz = np.array([p.xyz for _, p in points]).reshape(-1, 3)
-    colours = np.array([p.color for _, p in points], np.uint8).reshape(-1, 3)
-    views = [np.unique([by_id[e.image_id] for e in p.track.elements]) for _, p in points]
-    return xyz, colours, views

@@ -8,7 +8,7 @@ further left in the right image (x_right = x_left − d) and Z = fx·B/d.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import asdict, replace
 from functools import lru_cache
 from pathlib import Path
@@ -16,13 +16,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eve3d.fileio import atomic_dir, read_image, write_image
-from eve3d.layout import TONE_FILE  # written by the pretrain beside its PLY; read here
-from eve3d.maps import save_maps
-from eve3d.neighbours import select_neighbours
-from eve3d.photos import read_view
-from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.settings import SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings
+from eve3d.core.fileio import atomic_dir, read_image, write_image
+from eve3d.core.layout import TONE_FILE  # written by the pretrain beside its PLY; read here
+from eve3d.core.maps import save_maps
+from eve3d.core.photos import read_view
+from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.settings import SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings
+from eve3d.gaussians.neighbours import select_neighbours
+from eve3d.priors.matching import left_right_consistent, local_std
 
 
 def right_camera(cam: Camera, baseline: float) -> Camera:
@@ -38,22 +39,6 @@ def _matcher(min_disparity: int, num_disparities: int, s: SgbmSettings):
                                  P2=32 * 3 * b * b, disp12MaxDiff=-1, uniquenessRatio=s.uniqueness,
                                  speckleWindowSize=s.speckle_window, speckleRange=s.speckle_range,
                                  mode=getattr(cv2, SGM_MODES[s.sgm_mode]))
-
-
-def mirrored(matcher: Callable[[np.ndarray, np.ndarray], np.ndarray], left: np.ndarray,
-             right: np.ndarray) -> np.ndarray:
-    """The right image's own disparity from a left-image matcher (a stereo network has no
-    right matcher): mirroring both images turns the right view into a left view."""
-    flip = lambda im: np.ascontiguousarray(im[:, ::-1])  # noqa: E731
-    return np.ascontiguousarray(matcher(flip(right), flip(left))[:, ::-1])
-
-
-def left_right_consistent(disp_l: np.ndarray, disp_r: np.ndarray, threshold: float) -> np.ndarray:
-    """Left pixels whose disparity the right image's disparity confirms within ``threshold`` px."""
-    w = disp_l.shape[1]
-    x = np.arange(w)[None, :] - disp_l  # where each left pixel lands in the right image
-    back = np.take_along_axis(disp_r, np.clip(np.round(x).astype(int), 0, w - 1), axis=1)
-    return (disp_l > 0) & (x >= 0) & (back > 0) & (np.abs(back - disp_l) <= threshold)
 
 
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
@@ -85,40 +70,6 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
     return np.maximum(disp, 0).astype(np.float32), np.where(textured & (disp > 0), confidence, 0).astype(np.float32)
 
 
-def equalizing_curve(images: Iterable[np.ndarray], clip: float) -> np.ndarray:
-    """(256,) uint8 tone curve: contrast-limited histogram equalisation of the grey levels of
-    ``images`` (uint8) together. The histogram is clipped at ``clip`` × its mean bin count and
-    the excess spread over every level, so the curve's slope stays near ``clip`` or below;
-    level 0 stays 0 (a black background stays black)."""
-    hist = sum(np.bincount(im.ravel(), minlength=256) for im in images).astype(np.float64)
-    cap = clip * hist.mean()
-    for _ in range(8):  # spreading the excess can lift bins over the cap again; a few rounds settle it
-        excess = np.maximum(hist - cap, 0).sum()
-        hist = np.minimum(hist, cap) + excess / 256
-    cdf = np.cumsum(hist)
-    cdf = (cdf - cdf[0]) / max(cdf[-1] - cdf[0], 1e-12)
-    return np.round(255 * cdf).astype(np.uint8)
-
-
-def scene_tone_curve(scene: Scene, clip: float) -> np.ndarray:
-    """The pretrain's tone curve: ``equalizing_curve`` over every photo of ``scene``, one curve
-    for the whole scene so that a surface keeps its grey levels from view to view; the
-    identity when ``clip`` is 0."""
-    if clip <= 0:
-        return np.arange(256, dtype=np.uint8)
-    return equalizing_curve((read_image(c.image_path) for c in tqdm(scene.cameras, desc="tone curve", unit="img",
-                                                                    leave=False)), clip)
-
-
-def local_std(image: np.ndarray, size: int) -> np.ndarray:
-    """Grey-level standard deviation over a ``size``×``size`` window (0–255 scale)."""
-    import cv2
-
-    grey = (image.mean(-1) if image.ndim == 3 else image).astype(np.float32)
-    mean = cv2.blur(grey, (size, size))
-    return np.sqrt(np.maximum(cv2.blur(grey * grey, (size, size)) - mean * mean, 0))
-
-
 PAIRS_FILE = "pairs.json"
 
 
@@ -142,8 +93,8 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
     outside it (a matcher's search range then costs no columns of the photo)."""
     import torch
 
-    from eve3d.gaussians import GaussianModel
-    from eve3d.render import render_model
+    from eve3d.gaussians.model import GaussianModel
+    from eve3d.gaussians.render import render_model
 
     baseline, rendering = baseline or BaselineSettings(), rendering or RenderSettings()
     model = GaussianModel.load_ply(model_path)
@@ -275,8 +226,8 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
     to its own size)."""
     import torch
 
-    from eve3d.losses import depth_to_normal
-    from eve3d.render.projection import CameraTensors
+    from eve3d.gaussians.losses import depth_to_normal
+    from eve3d.gaussians.render.projection import CameraTensors
 
     pairs_path = stereo_dir / PAIRS_FILE
     if not pairs_path.exists():

@@ -29,14 +29,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eve3d.fileio import atomic_dir, write_image
-from eve3d.io.colmap import write_colmap
-from eve3d.io.loader import METADATA
-from eve3d.raycast import MeshRaycaster, seen_by
-from eve3d.scene import Camera, Scene
-from eve3d.settings import SfmSettings
-from eve3d.sfm import triangulate_known_poses
-from eve3d.surface import sample_surface
+from eve3d.core.fileio import atomic_dir, write_image
+from eve3d.core.io.colmap import triangulate_known_poses, write_colmap
+from eve3d.core.io.loader import METADATA
+from eve3d.core.raycast import MeshRaycaster, seen_by
+from eve3d.core.scene import Camera, Scene
+from eve3d.core.settings import SfmSettings
+from eve3d.core.surface import sample_surface
 
 LIGHT = np.array([0.3, -0.5, 1.0]) / np.linalg.norm([0.3, -0.5, 1.0])
 
@@ -363,7 +362,7 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
 
     The sparse points are what a user's SfM gives for known poses: features of the rendered
     photos matched (``matcher``: ``exhaustive`` or ``sequential``, the cameras' order) and
-    triangulated with pycolmap, outliers included (``eve3d.sfm.triangulate_known_poses``).
+    triangulated with pycolmap, outliers included (``eve3d.core.io.colmap.triangulate_known_poses``).
     ``surface_samples`` > 0 puts that many exact surface samples in their place instead: a
     benchmark's fixed model size (``eve3d bench training``), never a method's input."""
     import open3d as o3d

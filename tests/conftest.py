@@ -2,7 +2,7 @@ from pathlib import Path
 
 import pytest
 
-from eve3d.io import load_scene
+from eve3d.core.io import load_scene
 from eve3d.synth import generate
 from tests.helpers import TINY_START
 

@@ -55,7 +55,7 @@ def write_config(tmp_path: Path, **overrides) -> Path:
 def joint_settings(**kw):
     """Short joint-stage settings for the 8-view 64×48 scene (``tiny_scene``): 60 iterations
     of ``pgsr``, densification from 10 to 50; ``kw`` overrides any field."""
-    from eve3d.settings import DensifySettings, JointSettings
+    from eve3d.core.settings import DensifySettings, JointSettings
 
     base = dict(method="pgsr", iterations=60, sh_degree=1, sh_degree_interval=20, checkpoint_every=25,
                 dn_from=20, mv_from=20, ncc_pixels=256, previews=1,
@@ -81,7 +81,7 @@ def stereo_scene(tmp_path: Path, disparity: int, baseline: float = 0.5):
     file is written only on request (see the test of its absence)."""
     import cv2
 
-    from eve3d.scene import Camera, Scene
+    from eve3d.core.scene import Camera, Scene
     from eve3d.stereo import PAIRS_FILE
 
     left, right = shifted_pair(disparity)

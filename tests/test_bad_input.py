@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from eve3d.config import resolve_config
-from eve3d.io.colmap import import_pycolmap
-from eve3d.scene import Eve3dError
+from eve3d.core.io.colmap import import_pycolmap
+from eve3d.core.scene import Eve3dError
 from tests.helpers import run_cli
 
 EARLIER = b"an earlier run's artefact"
@@ -209,8 +209,8 @@ def test_training_resolution_zero_or_too_small(tiny_dataset, tmp_path, capsys):
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered in cast")  # planning the grid for 1e30 depths
 def test_depth_maps_that_fuse_to_no_surface(tiny_dataset, tmp_path, capsys):
-    from eve3d.io import load_scene
-    from eve3d.maps import save_maps
+    from eve3d.core.io import load_scene
+    from eve3d.core.maps import save_maps
 
     scene = load_scene(tiny_dataset)
     depth_dir = tmp_path / "depth"
@@ -251,8 +251,8 @@ def test_malformed_onnx_model(tiny_dataset, tmp_path, capsys):
 def test_ground_truth_of_the_wrong_kind(tiny_dataset, tmp_path, capsys):
     import open3d as o3d
 
-    from eve3d.io import load_scene
-    from eve3d.standin import dtu_scale_mat, write_dtu_layout, write_log
+    from eve3d.core.io import load_scene
+    from eve3d.tools.standin import dtu_scale_mat, write_dtu_layout, write_log
 
     mesh = tiny_dataset / "gt" / "mesh.ply"
     out = tmp_path / "results" / "metrics.json"
@@ -291,7 +291,7 @@ def test_ground_truth_of_the_wrong_kind(tiny_dataset, tmp_path, capsys):
 def test_disk_full_while_writing(tiny_dataset, tmp_path, capsys, monkeypatch):
     """The disk fills up half-way through writing a depth map (a mock of numpy's writer):
     the message names the artefact and says the disk is full; the earlier one is intact."""
-    from eve3d.fileio import DiskFull, atomic_path
+    from eve3d.core.fileio import DiskFull, atomic_path
 
     out = tmp_path / "results" / "priors"
     intact = earlier_artefact(out)

@@ -10,11 +10,11 @@ import pytest
 import yaml
 
 from eve3d.config import REPO, resolve_config
-from eve3d.io import load_scene
-from eve3d.layout import Layout
-from eve3d.scene import Eve3dError
+from eve3d.core.io import load_scene
+from eve3d.core.layout import Layout
+from eve3d.core.scene import Eve3dError
 from eve3d.synth import generate
-from eve3d.standin import STANDIN_SCENE, write_log, write_standin
+from eve3d.tools.standin import STANDIN_SCENE, write_log, write_standin
 from tests.helpers import TINY_START, open_report, run_cli, snakemake
 
 BENCHMARK_SCENES = {
@@ -115,7 +115,7 @@ def test_the_released_mipnerf360_pyramid_is_read(downloads, tmp_path):
     decoded at full size and resized."""
     import cv2
 
-    from eve3d.photos import read_view
+    from eve3d.core.photos import read_view
 
     root = tmp_path / "360"
     shutil.copytree(downloads["mipnerf360"], root)
@@ -166,7 +166,7 @@ def test_a_stl_in_another_frame_stops_the_check(downloads, tmp_path):
 def test_a_wrong_trajectory_stops_before_training(downloads, object_views, tmp_path, mistake):
     """Two cameras of the log swapped; or the log overwritten by a 'training' one, the same
     cameras in the scene's own frame (where the official transform does not apply)."""
-    from eve3d.io.tnt import read_log_trajectory
+    from eve3d.core.io.tnt import read_log_trajectory
 
     root = tmp_path / "TNT"
     shutil.copytree(downloads["tnt"], root)

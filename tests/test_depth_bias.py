@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 import torch
 
+from eve3d.core.maps import save_maps
+from eve3d.core.raycast import MeshRaycaster
+from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.settings import SgbmSettings
 from eve3d.evaluate.depth import depth_accuracy
-from eve3d.maps import save_maps
-from eve3d.raycast import MeshRaycaster
-from eve3d.scene import Camera, Eve3dError
-from eve3d.settings import SgbmSettings
 from eve3d.stereo import margin_camera, right_camera, sgbm_disparity
 from eve3d.synth import KINDS, shade
 
@@ -135,7 +135,7 @@ def plane_dataset(tmp_path_factory):
     """The ``plane`` kind, small: 12 views at 160×120 (exact poses, GT mesh)."""
     from eve3d.synth import generate
 
-    from eve3d.io import load_scene
+    from eve3d.core.io import load_scene
     from eve3d.priors.oracle import oracle_priors
 
     dataset = generate("plane", tmp_path_factory.mktemp("plane") / "plane", views=12, width=160, height=120)
@@ -148,10 +148,10 @@ def train_plane(dataset, out, **overrides):
     half the images' size (the preset's size when the bounds below were measured); returns
     the accuracy of its rendered depth against the exact depth."""
     from eve3d.config import job_config, stage_settings
-    from eve3d.io import load_scene
+    from eve3d.core.io import load_scene
+    from eve3d.core.methods import methods
+    from eve3d.core.settings import JointSettings
     from eve3d.joint import train_joint
-    from eve3d.settings import JointSettings
-    from eve3d.methods import methods
 
     brief = ["joint.iterations=300", "joint.dn_from=100", "joint.mv_from=100", "joint.checkpoint_every=0",
              "joint.densify.refine_stop=250", "joint.previews=0", "train.resolution=0.5"]
@@ -190,8 +190,8 @@ def test_pgsr_on_a_plane_has_no_depth_bias(plane_dataset, tmp_path):
 def test_initial_gaussians_on_a_surface_are_discs_in_its_plane():
     """Points on a slanted plane become discs whose thin axis is the plane's normal;
     points scattered in a volume (3DGS's random start) stay balls."""
-    from eve3d.gaussians import GaussianModel
-    from eve3d.render.projection import quat_to_rotmat
+    from eve3d.gaussians.model import GaussianModel
+    from eve3d.gaussians.render.projection import quat_to_rotmat
 
     rng = np.random.default_rng(0)
     normal = np.array([0.3, -0.4, 0.866]) / np.linalg.norm([0.3, -0.4, 0.866])

@@ -5,15 +5,16 @@ import numpy as np
 import scipy
 import pytest
 
+from eve3d.core.fileio import read_mesh
+from eve3d.core.io import load_scene
+from eve3d.core.raycast import MeshRaycaster, seen_counts
+from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.settings import EvalSettings
 from eve3d.evaluate import PROTOCOLS, EvalInputs
-from eve3d.settings import EvalSettings
-from eve3d.evaluate.common import distance_metrics, hot_r, mesh_distances, read_mesh
+from eve3d.evaluate.common import distance_metrics, hot_r, mesh_distances
 from eve3d.evaluate.dtu import cull_by_masks
-from eve3d.io import load_scene
-from eve3d.raycast import MeshRaycaster, seen_counts
-from eve3d.scene import Camera, Eve3dError, Scene
 from eve3d.synth import object_cameras
-from eve3d.standin import dtu_scale_mat, write_dtu_ground_truth, write_dtu_layout
+from eve3d.tools.standin import dtu_scale_mat, write_dtu_ground_truth, write_dtu_layout
 from tests.helpers import run_cli
 
 
@@ -138,7 +139,7 @@ def test_dtu_culling_removes_exactly_the_vertices_outside_the_dilated_masks(tmp_
     falls inside, its pixel lies within the 24 px disk around that camera's mask pixel."""
     import open3d as o3d
 
-    from eve3d.fileio import write_image
+    from eve3d.core.fileio import write_image
 
     w, h = 200, 150
     K = np.array([[100.0, 0, w / 2], [0, 100.0, h / 2], [0, 0, 1]])
@@ -245,15 +246,15 @@ def test_protocol_defaults_and_requirements_are_named(tmp_path, object_dataset):
 
 def test_protocols_score_the_same_a_chunk_at_a_time(tiny_scene, tmp_path, monkeypatch):
     """The synthetic, dtu and tnt protocols go through large clouds a chunk of points at a
-    time (eve3d.chunking): with chunks of 1000 points (200 for the thinning's neighbour
+    time (eve3d.core.chunking): with chunks of 1000 points (200 for the thinning's neighbour
     lists) every score equals the one from a single chunk. (open3d's threaded RANSAC and ICP
     move the T&T transform and its residual in their last digits from one run to the next,
     chunked or not.)"""
     import open3d as o3d
 
-    from eve3d import chunking
-    from eve3d.benchmarks import dtu_files
-    from eve3d.standin import write_dtu_release, write_tnt_release
+    from eve3d.core import chunking
+    from eve3d.core.datasets import dtu_files
+    from eve3d.tools.standin import write_dtu_release, write_tnt_release
 
     gt = read_mesh(tiny_scene.gt_mesh)
     tri = split_long_edges(np.asarray(gt.vertices)[np.asarray(gt.triangles)], 0.1) + [0.004, -0.002, 0.003]

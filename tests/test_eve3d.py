@@ -7,18 +7,18 @@ import numpy as np
 import pytest
 import torch
 
+from eve3d.core.maps import load_maps, save_maps
+from eve3d.core.methods import methods
+from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.settings import JointSettings
+from eve3d.gaussians.losses import CameraStack, forward_backward_error
+from eve3d.gaussians.render.projection import CameraTensors
+from eve3d.gaussians.train_state import Checkpoint
+from eve3d.gaussians.training import Trainer
+from eve3d.gaussians.views import View
 from eve3d.joint import multiview_terms, prior_plane, setup_joint, train_joint
-from eve3d.settings import JointSettings
-from eve3d.losses import CameraStack, forward_backward_error
-from eve3d.maps import load_maps, save_maps
-from eve3d.methods import methods
 from eve3d.priors.learnable import resample_prior
 from eve3d.priors.oracle import oracle_priors
-from eve3d.render.projection import CameraTensors
-from eve3d.scene import Camera, Eve3dError
-from eve3d.train_state import Checkpoint
-from eve3d.training import Trainer
-from eve3d.views import View
 from tests.helpers import joint_settings, run_cli
 
 
@@ -86,7 +86,7 @@ def test_lba_reprojection_returns_a_pixel_to_itself_with_exact_depth():
 
 
 def test_homography_ncc_is_about_one_on_the_true_plane_and_lower_on_a_wrong_one():
-    from eve3d.losses import ncc_loss
+    from eve3d.gaussians.losses import ncc_loss
 
     ref, nbr, depth = _plane_pair(tilt=0.3)  # 6 px of disparity, a texture period of about 11 px
     mask = torch.zeros_like(depth, dtype=torch.bool)
@@ -104,7 +104,7 @@ def test_homography_ncc_is_about_one_on_the_true_plane_and_lower_on_a_wrong_one(
 
 
 def test_a_neighbour_pixel_without_a_measured_depth_confirms_nothing():
-    from eve3d.losses import depth_confirmation
+    from eve3d.gaussians.losses import depth_confirmation
 
     xs = (0.3, -0.2)
     (ref, *nbrs), depth = _plane_views(0.3, (0.0, *xs))
@@ -190,7 +190,7 @@ def test_learnable_priors_move_only_as_the_method_says(tiny_scene, tmp_path, noi
 
 
 def test_confidence_never_grows_and_the_check_refutes_what_is_wrong(tiny_scene, tmp_path, noisy_priors):
-    from eve3d.neighbours import select_neighbours
+    from eve3d.gaussians.neighbours import select_neighbours
 
     exact, banded = noisy_priors.parent / "oracle", tmp_path / "banded"
     banded.mkdir()
@@ -212,7 +212,7 @@ def test_confidence_never_grows_and_the_check_refutes_what_is_wrong(tiny_scene, 
 
 
 def test_a_step_leaves_unvisited_views_priors_and_moments_untouched(tiny_scene, tmp_path, noisy_priors):
-    from eve3d.neighbours import select_neighbours
+    from eve3d.gaussians.neighbours import select_neighbours
 
     run = setup_joint(tiny_scene, tmp_path, _eve3d(iterations=1, prior_from=0, joint_from=0, neighbours=2),
                       noisy_priors)
@@ -288,7 +288,7 @@ def test_checkpoint_from_other_priors_is_not_resumed(tiny_scene, tmp_path, noisy
 
 
 def test_eve3d_starts_from_points_on_the_prior_surface(tiny_scene, tmp_path, noisy_priors):
-    from eve3d.raycast import MeshRaycaster  # noqa: F401 (the GT mesh is read by open3d)
+    from eve3d.core.raycast import MeshRaycaster  # noqa: F401 (the GT mesh is read by open3d)
     import open3d as o3d
 
     run = setup_joint(tiny_scene, tmp_path, _eve3d(init_prior_points=2000), noisy_priors)

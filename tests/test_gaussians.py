@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from eve3d.gaussians import SH_C0, GaussianModel, eval_sh, sh_coefficients
-from eve3d.scene import Eve3dError
+from eve3d.core.scene import Eve3dError
+from eve3d.gaussians.model import SH_C0, GaussianModel, eval_sh, sh_coefficients
 
 
 def random_model(n=50, degree=3, seed=0):

@@ -1,11 +1,11 @@
-"""The results tree (eve3d/layout.py) and the metrics records ``eve3d summary`` reads."""
+"""The results tree (eve3d/core/layout.py) and the metrics records ``eve3d summary`` reads."""
 import csv
 import json
 import subprocess
 import sys
 from pathlib import Path
 
-from eve3d.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout, locate
+from eve3d.core.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout, locate
 from tests.helpers import REPO, run_cli
 
 
@@ -23,7 +23,7 @@ def test_wildcards_give_the_snakemake_patterns():
 
 
 def test_layout_plans_without_torch():
-    code = "import sys, eve3d.layout; assert 'torch' not in sys.modules and 'numpy' not in sys.modules"
+    code = "import sys, eve3d.core.layout; assert 'torch' not in sys.modules and 'numpy' not in sys.modules"
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
     assert r.returncode == 0, r.stderr
 

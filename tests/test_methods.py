@@ -1,9 +1,9 @@
 """The method registry: variants are config, and the workflow and the CLI read the names."""
 import pytest
 
+from eve3d.core.methods import REGISTRY, methods
+from eve3d.core.scene import Eve3dError
 from eve3d.joint import train_joint
-from eve3d.methods import REGISTRY, methods
-from eve3d.scene import Eve3dError
 from tests.helpers import joint_settings, snakemake, write_config
 
 
@@ -44,7 +44,7 @@ def test_a_variant_in_config_trains_exactly_like_the_registered_method(tiny_scen
 def _overrides(settings: dict) -> dict:
     from dataclasses import replace
 
-    from eve3d.settings import DensifySettings
+    from eve3d.core.settings import DensifySettings
 
     out = dict(settings)
     if "densify" in out:

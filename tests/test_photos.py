@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from eve3d.fileio import read_image
-from eve3d.io import load_scene
-from eve3d.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, PRETRAIN, Layout
-from eve3d.photos import read_upright, read_view, scan_photos
-from eve3d.scene import Eve3dError, similarity_fit
-from eve3d.settings import RenderSettings
+from eve3d.core.fileio import read_image
+from eve3d.core.io import load_scene
+from eve3d.core.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, PRETRAIN, Layout
+from eve3d.core.photos import read_upright, read_view, scan_photos
+from eve3d.core.scene import Eve3dError, similarity_fit
+from eve3d.core.settings import RenderSettings
 from eve3d.synth import generate
 from tests.helpers import run_cli, snakemake, write_config
 
@@ -47,8 +47,8 @@ def test_one_orientation_rule(tmp_path):
 
 
 def test_read_view_reads_the_smallest_pyramid_level_that_is_large_enough(tmp_path):
-    from eve3d.photos import write_pyramid
-    from eve3d.scene import Camera
+    from eve3d.core.photos import write_pyramid
+    from eve3d.core.scene import Camera
 
     rng = np.random.default_rng(1)
     images = tmp_path / "images"
@@ -75,7 +75,7 @@ def test_read_view_reads_the_smallest_pyramid_level_that_is_large_enough(tmp_pat
 
 
 def test_training_size_is_capped_by_the_longest_side():
-    from eve3d.scene import Camera
+    from eve3d.core.scene import Camera
 
     cam = Camera("v.png", 4032, 3024, np.eye(3), np.eye(3), np.zeros(3))
     assert RenderSettings(max_side=512).scale(cam) == pytest.approx(512 / 4032)
@@ -192,10 +192,10 @@ def test_a_far_background_does_not_become_a_wall(tmp_path):
     """Every pixel that misses the object sees a 'sky' 60 units away, as a trained model
     renders one: fused without a region the sky is a wall far out; within the region of
     interest (the sparse points' box, doubled) the mesh is the object's size."""
-    from eve3d.maps import save_maps
+    from eve3d.core.maps import save_maps
+    from eve3d.core.raycast import MeshRaycaster
+    from eve3d.core.settings import MeshSettings
     from eve3d.mesh import extent_report, fuse
-    from eve3d.raycast import MeshRaycaster
-    from eve3d.settings import MeshSettings
 
     scene = load_scene(generate("object", tmp_path / "data", views=12, width=160, height=120))
     caster = MeshRaycaster.from_file(scene.gt_mesh)

@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eve3d.maps import load_maps
-from eve3d.raycast import MeshRaycaster
+from eve3d.core.maps import load_maps
+from eve3d.core.raycast import MeshRaycaster
 from eve3d.synth import generate
 from tests.helpers import run_cli
 
@@ -88,9 +88,9 @@ def test_fusion_allocates_exactly_the_blocks_it_fuses_a_slab_at_a_time(kind, tmp
     from dataclasses import replace
 
     from eve3d import mesh as meshing
-    from eve3d.io import load_scene
+    from eve3d.core.io import load_scene
+    from eve3d.core.settings import MeshSettings
     from eve3d.priors.oracle import oracle_priors
-    from eve3d.settings import MeshSettings
 
     scene = load_scene(generate(kind, tmp_path / kind, views=8, width=96, height=72))
     oracle_priors(scene, tmp_path / "depth", preview=False)
@@ -126,10 +126,10 @@ def test_fusion_past_what_open3d_extracts_is_refused_before_fusing(tiny_dataset,
     handles (it crashes past 262,144 blocks), the fusion stops with an error that names
     the remedy, before any view is fused."""
     from eve3d import mesh as meshing
-    from eve3d.io import load_scene
+    from eve3d.core.io import load_scene
+    from eve3d.core.scene import Eve3dError
+    from eve3d.core.settings import MeshSettings
     from eve3d.priors.oracle import oracle_priors
-    from eve3d.scene import Eve3dError
-    from eve3d.settings import MeshSettings
 
     scene = load_scene(tiny_dataset)
     oracle_priors(scene, tmp_path / "depth", preview=False)
@@ -162,8 +162,8 @@ def test_killed_training_reruns_to_the_same_result(tmp_path):
     import psutil
     import torch
 
-    from eve3d.gaussians import GaussianModel
-    from eve3d.layout import Layout
+    from eve3d.core.layout import Layout
+    from eve3d.gaussians.model import GaussianModel
     from tests.helpers import REPO, SNAKEFILE, snakemake, write_config
 
     short = {"refine_start": 10, "refine_every": 10, "refine_stop": 40, "reset_every": 0}

@@ -1,12 +1,12 @@
 """The ``cpu`` backend's fused C++ projection against finite differences and against its
-PyTorch reference, :func:`eve3d.render.projection.project_gaussians`."""
+PyTorch reference, :func:`eve3d.gaussians.render.projection.project_gaussians`."""
 import math
 
 import pytest
 import torch
 
-from eve3d.render import cpu
-from eve3d.render.projection import CameraTensors, project_gaussians
+from eve3d.gaussians.render import cpu
+from eve3d.gaussians.render.projection import CameraTensors, project_gaussians
 
 NEAR = 0.01
 
@@ -117,7 +117,7 @@ def test_fused_projection_matches_pytorch_in_float32(antialiased):
 
 
 def test_means2d_keeps_its_gradient_for_densification():
-    from eve3d.render import render
+    from eve3d.gaussians.render import render
 
     cam = camera()
     means, quats, scales, opacities = [x.requires_grad_(True) for x in gradcheck_scene()]
@@ -131,7 +131,7 @@ def test_means2d_keeps_its_gradient_for_densification():
 def test_front_to_back_in_cpp_matches_pytorch(dtype):
     """The C++ visible set, depth order (stable, ties included) and pixel boxes are the
     PyTorch reference's, exactly."""
-    from eve3d.render.projection import front_to_back
+    from eve3d.gaussians.render.projection import front_to_back
 
     g = torch.Generator().manual_seed(3)
     cam = camera(dtype)

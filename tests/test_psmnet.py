@@ -10,10 +10,10 @@ import torch
 import yaml
 
 from eve3d.cli import main
+from eve3d.core.scene import Eve3dError
+from eve3d.core.settings import OnnxSpec
 from eve3d.priors.onnx import OnnxStereo
 from eve3d.priors.psmnet import FETCH_COMMAND, IMAGENET_MEAN, IMAGENET_STD, load_psmnet, weights_path
-from eve3d.scene import Eve3dError
-from eve3d.settings import OnnxSpec
 
 needs_weights = pytest.mark.skipif(not weights_path().is_file(),
                                    reason=f"PSMNet weights not in {weights_path()}: {FETCH_COMMAND}")

@@ -6,8 +6,8 @@ import pytest
 import torch
 from PIL import Image
 
-from eve3d.render import render
-from eve3d.render.projection import ALPHA_MIN, CameraTensors, project, quat_to_rotmat
+from eve3d.gaussians.render import render
+from eve3d.gaussians.render.projection import ALPHA_MIN, CameraTensors, project, quat_to_rotmat
 
 
 def camera(width=24, height=18, dtype=torch.float64, tilt=0.0):
@@ -109,7 +109,7 @@ def test_gradients_match_finite_differences(backend):
 
 def test_backends_agree_on_a_surface_scene():
     """The C++ tiles and the PyTorch pairs: same pairs, same images, same gradients."""
-    from eve3d.bench import surface_gaussians
+    from eve3d.tools.bench import surface_gaussians
 
     params, cam = surface_gaussians(3000, 160, 120)
     results = {}
@@ -182,9 +182,9 @@ def flat_gaussian(normal_cam, center, cam, size=0.4):
 def test_a_geometry_only_render_gives_the_same_geometry_and_gradients(backend):
     """PGSR's neighbour render skips the colours: its depth, normals, alpha and their
     gradients are those of the full render."""
-    from eve3d.gaussians import GaussianModel
-    from eve3d.render import render_model
-    from eve3d.settings import RenderSettings
+    from eve3d.core.settings import RenderSettings
+    from eve3d.gaussians.model import GaussianModel
+    from eve3d.gaussians.render import render_model
 
     means, quats, scales, opacities, colors = random_gaussians(150, seed=4)
     model = GaussianModel.from_points(means.numpy(), colors.numpy(), sh_degree=1)

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from eve3d.io import load_scene
-from eve3d.io.colmap import read_colmap, write_colmap
-from eve3d.io.dtu import decompose_projection
-from eve3d.scene import Camera, Scene, similarity_fit
-from eve3d.standin import dtu_scale_mat, write_dtu_layout
+from eve3d.core.io import load_scene
+from eve3d.core.io.colmap import read_colmap, write_colmap
+from eve3d.core.io.dtu import decompose_projection
+from eve3d.core.scene import Camera, Scene, similarity_fit
+from eve3d.tools.standin import dtu_scale_mat, write_dtu_layout
 
 
 @pytest.mark.parametrize("binary", [True, False])
@@ -85,7 +85,7 @@ def test_isolated_points_are_two_view_points_far_from_every_reliable_one():
     """SfM's outliers, which `train.init_drop_isolated` leaves out of the start: a two-view
     point beside the well-seen surface stays, one far from it goes; a point seen in three
     views is never isolated."""
-    from eve3d.training import initial_points
+    from eve3d.gaussians.training import initial_points
 
     rng = np.random.default_rng(0)
     grid = np.stack(np.meshgrid(np.linspace(0, 1, 10), np.linspace(0, 1, 10), [0.0]), -1).reshape(-1, 3)

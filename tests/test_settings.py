@@ -7,8 +7,8 @@ import sys
 import pytest
 import yaml
 
-from eve3d.scene import Eve3dError
-from eve3d.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings,
+from eve3d.core.scene import Eve3dError
+from eve3d.core.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings,
                             from_mapping, pick)
 from tests.helpers import REPO, SNAKEFILE
 
@@ -33,7 +33,7 @@ def test_settings_and_planning_need_no_torch(tmp_path):
     """The settings import, and `snakemake -n` plans the default config, with torch unimportable."""
     r = _without_torch(tmp_path, "-c", "import torch")
     assert r.returncode != 0 and "blocked" in r.stderr  # the block works
-    r = _without_torch(tmp_path, "-c", "import eve3d.settings, eve3d.config; print('ok')")
+    r = _without_torch(tmp_path, "-c", "import eve3d.core.settings, eve3d.config; print('ok')")
     assert r.returncode == 0 and "ok" in r.stdout, r.stderr
     r = _without_torch(tmp_path, "-m", "snakemake", "-s", str(SNAKEFILE), "-n", "--config",
                        f"results={tmp_path / 'results'}")
@@ -82,7 +82,7 @@ def test_defaults_live_once_in_the_settings():
     """The schema holds no leaf default (only preset, results, methods), and a resolved
     config carries every section whole, with the settings classes' defaults."""
     from eve3d.config import resolve_config
-    from eve3d.settings import SGM_MODES, SgbmSettings
+    from eve3d.core.settings import SGM_MODES, SgbmSettings
 
     schema = yaml.safe_load((REPO / "workflow/schemas/config.schema.yaml").read_text())
 
@@ -112,13 +112,13 @@ def test_defaults_live_once_in_the_settings():
 
 
 def test_config_readme_tables_are_generated_from_the_settings():
-    """config/README.md's key tables are what `python -m eve3d.keydoc` writes, and every key
+    """config/README.md's key tables are what `python -m eve3d.tools.keydoc` writes, and every key
     has a docstring to fill its row and its CLI help."""
-    from eve3d.keydoc import README, TABLES, with_tables
-    from eve3d.settings import keys, sections_of
+    from eve3d.core.settings import keys, sections_of
+    from eve3d.tools.keydoc import README, TABLES, with_tables
 
     text = README.read_text()
-    assert with_tables(text) == text, "config/README.md is out of date: run `python -m eve3d.keydoc`"
+    assert with_tables(text) == text, "config/README.md is out of date: run `python -m eve3d.tools.keydoc`"
     for _, cls in TABLES:
         for c in [cls, *sections_of(cls).values()]:
             assert [k.name for k in keys(c) if not k.doc] == [], c.__name__

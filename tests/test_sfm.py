@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from eve3d.io import load_scene
-from eve3d.io.colmap import read_colmap
-from eve3d.scene import similarity_fit
+from eve3d.core.io import load_scene
+from eve3d.core.io.colmap import read_colmap
+from eve3d.core.scene import similarity_fit
 from eve3d.synth import generate
 from tests.helpers import run_cli
 

@@ -4,13 +4,15 @@ import json
 import numpy as np
 import pytest
 
-from eve3d.bench import stereo_motorcycle
-from eve3d.maps import load_maps, preview_image
-from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.settings import BaselineSettings, MatchCheck, SgbmSettings
+from eve3d.core.maps import load_maps, preview_image
+from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.settings import BaselineSettings, MatchCheck, SgbmSettings
+from eve3d.tools.bench import stereo_motorcycle
 from tests.helpers import shifted_pair, stereo_scene
-from eve3d.stereo import (PAIRS_FILE, checked_confidence, equalizing_curve, local_std, render_right_views,
-                          right_camera, sgbm_disparity, sgbm_priors)
+from eve3d.core.photos import equalizing_curve
+from eve3d.priors.matching import local_std
+from eve3d.stereo import (PAIRS_FILE, checked_confidence, render_right_views, right_camera, sgbm_disparity,
+                          sgbm_priors)
 
 
 def test_right_camera_gives_disparity_fx_b_over_z():
@@ -94,7 +96,7 @@ def test_sgbm_priors_match_the_photo_through_the_pretrains_tone_curve(tmp_path):
 
 
 def test_pretrain_equalize_out_of_range_is_named():
-    from eve3d.settings import PretrainSettings
+    from eve3d.core.settings import PretrainSettings
 
     with pytest.raises(Eve3dError, match="pretrain.equalize"):
         PretrainSettings(equalize=0.5)
@@ -174,7 +176,7 @@ def test_priors_without_the_pretrained_models_alpha_are_refused_by_name(tmp_path
 
 def plane_model(tmp_path, depth: float, cam: Camera):
     """Gaussians on a textured fronto-parallel plane at ``depth`` in front of ``cam``."""
-    from eve3d.gaussians import GaussianModel
+    from eve3d.gaussians.model import GaussianModel
 
     rng = np.random.default_rng(0)
     u, v = np.meshgrid(np.linspace(-1.2, 1.2, 160), np.linspace(-0.9, 0.9, 120))
@@ -192,9 +194,9 @@ def test_disparity_baseline_gives_the_target_disparity_at_the_median_depth(tmp_p
     it gives back is the plane's. The bound B ≤ max_baseline × Z holds."""
     import torch
 
-    from eve3d.fileio import write_image
-    from eve3d.gaussians import GaussianModel
-    from eve3d.render import render
+    from eve3d.core.fileio import write_image
+    from eve3d.gaussians.model import GaussianModel
+    from eve3d.gaussians.render import render
 
     K = np.array([[80.0, 0, 48], [0, 80, 36], [0, 0, 1]])
     cam = Camera("v.png", 96, 72, K, np.eye(3), np.zeros(3), image_path=tmp_path / "v.png")
@@ -224,9 +226,9 @@ def test_neighbour_photos_agree_with_the_exact_depth_and_not_with_a_wrong_one(ob
     """The multi-view check compares real photos: warped by the exact depth, a view's
     neighbours agree with it; by a depth 8 % too far (what a wrongly placed pretrained model
     would give the right view, and SGBM would then find), they do not."""
-    from eve3d.fileio import read_image
-    from eve3d.neighbours import select_neighbours
-    from eve3d.raycast import MeshRaycaster
+    from eve3d.core.fileio import read_image
+    from eve3d.core.raycast import MeshRaycaster
+    from eve3d.gaussians.neighbours import select_neighbours
     from eve3d.stereo import neighbour_ncc
 
     cams = object_scene.cameras
@@ -244,7 +246,7 @@ def test_neighbour_photos_agree_with_the_exact_depth_and_not_with_a_wrong_one(ob
 def test_dark_room_is_the_inside_room_darker_and_flatter(tmp_path):
     """The hard case for stereo: the same capture as ``inside-room`` (same cameras), with
     walls and ceiling dark and of low contrast."""
-    from eve3d.fileio import read_image
+    from eve3d.core.fileio import read_image
     from eve3d.synth import generate
 
     images = {}

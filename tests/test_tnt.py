@@ -5,17 +5,17 @@ import json
 import numpy as np
 import pytest
 
+from eve3d.core.fileio import write_image
+from eve3d.core.io import load_scene
+from eve3d.core.io.colmap import write_colmap
+from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.settings import EvalSettings
+from eve3d.core.surface import sample_surface
 from eve3d.evaluate import EvalInputs
-from eve3d.settings import EvalSettings
 from eve3d.evaluate.common import hot_r
 from eve3d.evaluate.tnt import TAU, align_trajectory, evaluate_tnt, log_centres, read_crop, score
-from eve3d.fileio import write_image
-from eve3d.io import load_scene
-from eve3d.io.colmap import write_colmap
-from eve3d.scene import Camera, Eve3dError, Scene
-from eve3d.surface import sample_surface
 from eve3d.synth import _look_at
-from eve3d.standin import similarity, write_crop, write_log
+from eve3d.tools.standin import similarity, write_crop, write_log
 
 
 def inside_polygon(xy, polygon):

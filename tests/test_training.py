@@ -6,17 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from eve3d.densify import Densifier, reset_opacity
-from eve3d.gaussians import GaussianModel
+from eve3d.gaussians.densify import Densifier, reset_opacity
+from eve3d.gaussians.model import GaussianModel
 from eve3d.joint import train_joint
-from eve3d.losses import (CameraStack, depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss,
+from eve3d.gaussians.losses import (CameraStack, depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss,
                           ssim)
-from eve3d.render.projection import CameraTensors
-from eve3d.scene import Camera, Eve3dError
-from eve3d.settings import DensifySettings, JointSettings, TrainSettings, from_mapping
-from eve3d.train_state import Checkpoint
-from eve3d.training import NonFiniteLoss, Trainer
-from eve3d.view_report import view_metrics
+from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.settings import DensifySettings, JointSettings, TrainSettings, from_mapping
+from eve3d.gaussians.render.projection import CameraTensors
+from eve3d.gaussians.train_state import Checkpoint
+from eve3d.gaussians.training import NonFiniteLoss, Trainer
+from eve3d.gaussians.view_report import view_metrics
 from tests.helpers import joint_settings
 
 
@@ -387,7 +387,7 @@ def test_growth_budget_keeps_the_strongest_candidates():
 def test_scene_without_points_starts_from_random_points_in_the_camera_sphere(tiny_scene):
     from dataclasses import replace
 
-    from eve3d.training import initial_points
+    from eve3d.gaussians.training import initial_points
 
     bare = replace(tiny_scene, points=None, point_colors=None, point_views=None)
     pts, colors = initial_points(bare, 500, np.random.default_rng(0))

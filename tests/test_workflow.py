@@ -10,11 +10,11 @@ import yaml
 import pytest
 from PIL import Image
 
-from eve3d.io import load_scene
-from eve3d.io.colmap import write_colmap
-from eve3d.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout
+from eve3d.core.io import load_scene
+from eve3d.core.io.colmap import write_colmap
+from eve3d.core.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout
 from eve3d.synth import generate
-from eve3d.standin import dtu_scale_mat, write_dtu_layout
+from eve3d.tools.standin import dtu_scale_mat, write_dtu_layout
 from tests.helpers import REPO, run_cli, snakemake, write_config
 
 # -- what each rule writes ---------------------------------------------------------------------
@@ -49,7 +49,7 @@ def assert_maps(folder, scene, previews: bool = True, scale: float = 1.0) -> Non
     the camera's shape (at ``scale``), normals (H, W, 3), all finite; depth ≥ 0, confidence in [0, 1],
     some confident pixels, with a positive depth on every confident pixel; the PNG preview
     of the depth beside each (``previews``)."""
-    from eve3d.maps import load_maps
+    from eve3d.core.maps import load_maps
 
     assert sorted(f.stem for f in folder.glob("*.npz")) == sorted(c.view_id for c in scene.cameras), folder
     for cam in (c.scaled(scale) if scale != 1 else c for c in scene.cameras):
@@ -67,7 +67,7 @@ def assert_maps(folder, scene, previews: bool = True, scale: float = 1.0) -> Non
 
 def assert_gaussians(path, count: int) -> None:
     """A Gaussian model PLY that loads, with ``count`` Gaussians (as its metrics say), finite."""
-    from eve3d.gaussians import GaussianModel
+    from eve3d.gaussians.model import GaussianModel
 
     model = GaussianModel.load_ply(path)
     assert len(model) == count > 0, path
@@ -343,7 +343,7 @@ def test_failed_rows_name_the_job_each_row_waited_for(tmp_path):
     """From Snakemake's log of failed jobs: a method's own training failure names that row
     only; a prior backend's failure names the rows left without metrics; a row with metrics
     is not listed."""
-    from eve3d.failures import failed_jobs, failed_rows
+    from eve3d.core.failures import failed_jobs, failed_rows
 
     layout = Layout(tmp_path / "results")
     layout.metrics("tiny", "oracle").parent.mkdir(parents=True)
@@ -376,7 +376,7 @@ def test_progress_shows_job_starts_ends_and_the_training_bar(tmp_path):
 
     from snakemake_interface_logger_plugins.common import LogEvent
 
-    from eve3d.progress import ProgressHandler, latest_progress
+    from eve3d.core.progress import ProgressHandler, latest_progress
 
     log = tmp_path / "joint_eve3d.log"
     log.write_text("eve3d: loading images\neve3d:  10%|#         | 10/100 [00:01<00:09, 9.9it/s, loss=0.2, psnr=12.00]"

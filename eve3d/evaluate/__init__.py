@@ -19,8 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from eve3d.scene import Eve3dError, Scene
-from eve3d.settings import EvalSettings, flag
+from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.settings import EvalSettings, flag
 
 
 @dataclass
@@ -129,7 +129,7 @@ GIVEN_TAU = "given (evaluate.tau)"
 """``tau_rule`` of a τ the user set."""
 
 DEFAULT_PROTOCOL: dict[str, str] = {"colmap": "synthetic", "dtu": "dtu", "tnt": "tnt"}
-"""Protocol of each dataset format (``eve3d.io.loader.dataset_format``) when its ground truth
+"""Protocol of each dataset format (``eve3d.core.io.loader.dataset_format``) when its ground truth
 is given and a scene names none."""
 WITHOUT_GT = "nvs"
 """The default protocol of a scene whose format's protocol has none of its ground truth

@@ -1,4 +1,4 @@
-"""What the protocols share: reading meshes, distances, precision/recall/F-score."""
+"""What the protocols share: distances, precision/recall/F-score, error maps."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,23 +6,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from eve3d.chunking import chunks
-from eve3d.scene import Eve3dError
-
-
-def read_mesh(path: Path):
-    """An open3d legacy triangle mesh, or a clear error."""
-    import open3d as o3d
-
-    if not Path(path).is_file():
-        raise Eve3dError(f"{path}: mesh not found")
-    mesh = o3d.io.read_triangle_mesh(str(path))
-    if len(mesh.triangles) == 0 and len(mesh.vertices):  # distances to a surface need its triangles
-        raise Eve3dError(f"{path}: a point cloud ({len(mesh.vertices)} points, no triangles), not a triangle mesh")
-    if len(mesh.triangles) == 0:
-        raise Eve3dError(f"{path}: not a triangle mesh that open3d reads (.ply, .obj, .off, .stl, .glb), or an "
-                         f"empty one")
-    return mesh
+from eve3d.core.chunking import chunks
+from eve3d.core.scene import Eve3dError
 
 
 def nearest_distances(query: np.ndarray, reference: np.ndarray, upper_bound: float = np.inf,
@@ -30,7 +15,7 @@ def nearest_distances(query: np.ndarray, reference: np.ndarray, upper_bound: flo
     """Distance from each query point to its nearest reference point; ``inf`` where none is
     closer than ``upper_bound``. A finite bound keeps the search short for points far from
     a dense reference (floaters), which otherwise visit most of the tree. Queried ``chunk``
-    points at a time (:mod:`eve3d.chunking`)."""
+    points at a time (:mod:`eve3d.core.chunking`)."""
     if not len(reference):
         return np.full(len(query), np.inf)
     tree = cKDTree(reference)
@@ -103,7 +88,7 @@ def write_error_maps(folder: Path, recon: np.ndarray, recon_distances: np.ndarra
     written atomically; at most :data:`ERROR_MAP_POINTS` of each."""
     import open3d as o3d
 
-    from eve3d.fileio import atomic_path
+    from eve3d.core.fileio import atomic_path
 
     rng = np.random.default_rng(0)
     for name, points, distances in (("precision", recon, recon_distances), ("recall", gt, gt_distances)):

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.maps import depth_at, load_maps, map_camera, same_aspect
-from eve3d.settings import MeshSettings, StereoSettings
-from eve3d.scene import Eve3dError
+from eve3d.core.maps import depth_at, load_maps, map_camera, same_aspect
+from eve3d.core.scene import Eve3dError
+from eve3d.core.settings import MeshSettings, StereoSettings
 
 
 WEAK_TEXTURE = 2.0
@@ -27,7 +27,7 @@ def weak_texture(images: Path, view: str, width: int, height: int, window: int) 
     textured (:data:`WEAK_TEXTURE`)."""
     import cv2
 
-    from eve3d.stereo import local_std
+    from eve3d.priors.matching import local_std
 
     files = sorted(images.glob(f"{view}.*"))
     if not files:
@@ -123,12 +123,12 @@ def prior_agreement(scene, maps_dir: Path, neighbours: int = 2, stride: int = 4,
                     min_confidence: float = MeshSettings.min_confidence) -> dict:
     """Without ground truth: how far neighbouring views' depth maps agree. Every
     ``stride``-th confident pixel of a view is back-projected and projected into each of its
-    ``neighbours`` (``eve3d.neighbours``); where it lands on a confident pixel of the
+    ``neighbours`` (``eve3d.gaussians.neighbours``); where it lands on a confident pixel of the
     neighbour, the relative difference |z − D_n| / D_n between its depth there and the
     neighbour's map counts. Returns the median of those differences, the share over 5 %,
     the density (confident / all pixels) and how many pixels were compared. A surface seen
     by both views agrees; a wrong depth in either does not (occlusions count against too)."""
-    from eve3d.neighbours import select_neighbours
+    from eve3d.gaussians.neighbours import select_neighbours
 
     maps_dir = Path(maps_dir)
     views = []

@@ -14,11 +14,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from eve3d import chunking
-from eve3d.chunking import chunks
+from eve3d.core import chunking
+from eve3d.core.chunking import chunks
+from eve3d.core.fileio import read_mesh
+from eve3d.core.scene import Camera, Eve3dError, Scene
 from eve3d.evaluate import EvalInputs
-from eve3d.evaluate.common import nearest_distances, read_mesh, write_error_maps
-from eve3d.scene import Camera, Eve3dError, Scene
+from eve3d.evaluate.common import nearest_distances, write_error_maps
 
 MASK_DILATION = 24
 """Radius (px) of the disk the object masks are dilated by before culling."""
@@ -50,7 +51,7 @@ def on_mask(cam: Camera, points: np.ndarray, dilation: int = MASK_DILATION) -> t
     import cv2
     from skimage.morphology import disk
 
-    from eve3d.fileio import read_mask
+    from eve3d.core.fileio import read_mask
 
     mask = cv2.dilate(read_mask(cam.mask_path).astype(np.uint8), disk(dilation).astype(np.uint8)) > 0
     inside, hit = np.zeros(len(points), dtype=bool), []

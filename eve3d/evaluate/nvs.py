@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import json
 
+from eve3d.core.layout import HELD_OUT_DIR, TRAIN_METRICS_FILE
+from eve3d.core.scene import Eve3dError
 from eve3d.evaluate import PROTOCOLS, EvalInputs
-from eve3d.layout import HELD_OUT_DIR, TRAIN_METRICS_FILE
-from eve3d.scene import Eve3dError
 
 RENDER_KEYS = ("resolution", "max_side", "background", "antialiased", "backend", "device")
 """Training settings that change what a view renders to."""
@@ -21,10 +21,10 @@ RENDER_KEYS = ("resolution", "max_side", "background", "antialiased", "backend",
 
 def evaluate_views(inputs: EvalInputs) -> dict:
     """PSNR and SSIM of the held-out views (module docstring)."""
-    from eve3d.gaussians import GaussianModel
-    from eve3d.settings import TrainSettings
-    from eve3d.view_report import view_metrics
-    from eve3d.views import Views, pick_device
+    from eve3d.core.settings import TrainSettings
+    from eve3d.gaussians.model import GaussianModel
+    from eve3d.gaussians.view_report import view_metrics
+    from eve3d.gaussians.views import Views, pick_device
 
     holdout = PROTOCOLS["nvs"].joint_settings["holdout"]
     model_path = inputs.reconstruction

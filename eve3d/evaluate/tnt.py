@@ -26,9 +26,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from eve3d.core.fileio import read_mesh
+from eve3d.core.scene import Eve3dError, Scene
 from eve3d.evaluate import GIVEN_TAU, EvalInputs
-from eve3d.evaluate.common import COLOUR_RANGE, fscore, nearest_distances, read_mesh, write_error_maps
-from eve3d.scene import Eve3dError, Scene
+from eve3d.evaluate.common import COLOUR_RANGE, fscore, nearest_distances, write_error_maps
 
 TAU: dict[str, float] = {"Barn": 0.01, "Caterpillar": 0.005, "Church": 0.025, "Courthouse": 0.025,
                          "Ignatius": 0.003, "Meetingroom": 0.01, "Truck": 0.005}
@@ -190,7 +191,7 @@ def reconstruction_points(mesh, mode: str, tau: float, samples: int, rng: np.ran
     """The points of the mesh that are scored (``evaluate.tnt_points``): its vertices, and in
     ``sampled`` mode up to ``samples`` uniform area samples, about one per (τ/2)² (τ in the
     mesh's units)."""
-    from eve3d.surface import sample_surface
+    from eve3d.core.surface import sample_surface
 
     vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
     if mode == "vertices":
@@ -220,7 +221,7 @@ def check_alignment(inputs: EvalInputs) -> dict:
     passes (1) and fails (2): the transform was made for the official log's frame."""
     import open3d as o3d
 
-    from eve3d.scene import similarity_fit
+    from eve3d.core.scene import similarity_fit
 
     scene, extras = inputs.scene, inputs.scene.extras
     tau, _ = scene_tau(extras.get("name"), inputs.settings.tau)

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eve3d.maps import load_maps, preview_image, same_aspect
-from eve3d.scene import Camera, Eve3dError
+from eve3d.core.maps import load_maps, preview_image, same_aspect
+from eve3d.core.scene import Camera, Eve3dError
 
 
 @dataclass
@@ -59,8 +59,8 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
     the file; so are priors without a confident pixel in any view. A view without one (a
     blank wall or ceiling: the stereo matches nothing) is named in a warning; it trains
     without prior terms unless the multi-view check confirms some of its depths."""
-    from eve3d.losses import depth_to_normal
-    from eve3d.render.projection import CameraTensors
+    from eve3d.gaussians.losses import depth_to_normal
+    from eve3d.gaussians.render.projection import CameraTensors
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -91,7 +91,7 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
     if len(blank) == len(training):
         raise Eve3dError(f"{folder}: no confident prior depth in any view (every pixel invalid or unconfident)")
     if blank:
-        from eve3d.photos import warn
+        from eve3d.core.photos import warn
 
         warn(f"{folder}: {len(blank)} of {len(training)} views have no confident prior depth (nothing the "
              f"stereo could match: a blank wall, no overlap); they train without prior terms, but where the "

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.scene import Eve3dError
-from eve3d.settings import MccnnSettings
-from eve3d.stereo import left_right_consistent, local_std
+from eve3d.core.scene import Eve3dError
+from eve3d.core.settings import MccnnSettings
+from eve3d.priors.matching import left_right_consistent, local_std
 
 PATCH = 11
 """MC-CNN fast's receptive field (five 3×3 convolutions without padding), px."""

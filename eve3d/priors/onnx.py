@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.scene import Eve3dError
-from eve3d.settings import OnnxSpec
-from eve3d.stereo import left_right_consistent, mirrored
+from eve3d.core.scene import Eve3dError
+from eve3d.core.settings import OnnxSpec
+from eve3d.priors.matching import left_right_consistent, mirrored
 
 
 class OnnxStereo:

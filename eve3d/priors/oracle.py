@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eve3d.fileio import atomic_dir
-from eve3d.maps import save_maps
-from eve3d.raycast import MeshRaycaster
-from eve3d.scene import Eve3dError, Scene
+from eve3d.core.fileio import atomic_dir
+from eve3d.core.maps import save_maps
+from eve3d.core.raycast import MeshRaycaster
+from eve3d.core.scene import Eve3dError, Scene
 
 
 def oracle_priors(scene: Scene, out_dir: Path, mesh: Path | None = None, preview: bool = True) -> None:

@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from eve3d.scene import Eve3dError
+from eve3d.core.scene import Eve3dError
 
 TRAINED_MAXDISP = 192
 WEIGHTS_FILE = "pretrained_model_KITTI2015.tar"
@@ -219,7 +219,7 @@ def export_psmnet(weights: str | Path | None, out_dir: str | Path, size: tuple[i
 
     import yaml
 
-    from eve3d.fileio import atomic_path
+    from eve3d.core.fileio import atomic_path
 
     if importlib.util.find_spec("onnx") is None:  # torch's exporter writes through it
         raise Eve3dError("exporting to ONNX needs the onnx package: pip install onnx (eve3d's test extra has it)")

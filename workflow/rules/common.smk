@@ -10,10 +10,10 @@ REPO = str(Path(workflow.basedir).parent)  # workflow/Snakefile: the checkout wh
 sys.path.insert(0, REPO)
 from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_protocol, scene_sections, scene_value,
                           stage_settings)
-from eve3d.io.loader import has_poses
-from eve3d.layout import PRETRAIN, Layout
-from eve3d.scene import Eve3dError
-from eve3d.settings import PRIOR_BACKEND_DEVICES, PretrainSettings, RenderSettings, flag, pick
+from eve3d.core.io.loader import has_poses
+from eve3d.core.layout import PRETRAIN, Layout
+from eve3d.core.scene import Eve3dError
+from eve3d.core.settings import PRIOR_BACKEND_DEVICES, PretrainSettings, RenderSettings, flag, pick
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")
@@ -22,9 +22,9 @@ except Eve3dError as e:
 config.clear()
 config.update(_resolved)
 
-LAYOUT = Layout(config["results"])  # every path under the results folder (eve3d/layout.py)
+LAYOUT = Layout(config["results"])  # every path under the results folder (eve3d/core/layout.py)
 SCENES = list(config["scenes"])
-from eve3d.methods import GAUSSIAN_DEVICE, methods
+from eve3d.core.methods import GAUSSIAN_DEVICE, methods
 
 try:
     PROTOCOL = {s: scene_protocol(s, config["scenes"][s]) for s in SCENES}

@@ -81,7 +81,7 @@ def report_failures(log):
     summary and the report list each scene and method left without metrics, with its job's
     first error line and log (``log``: Snakemake's log file)."""
     import subprocess
-    from eve3d.failures import failed_jobs, failed_rows, write_failures
+    from eve3d.core.failures import failed_jobs, failed_rows, write_failures
 
     failed = failed_rows(LAYOUT, [(s, m) for s in SCENES for m in scene_methods(s)], failed_jobs(log))
     write_failures(LAYOUT.failures(), failed)

@@ -1,0 +1,788 @@
+"""Every stage's settings, declared once: each field with its default, its bounds and its
+documentation. Importable without torch, so that planning the workflow does not load it.
+
+A field's bounds live in its metadata (:func:`setting`), its documentation in the string
+under it (read by :func:`keys` for the CLI's flags and config/README.md's tables). Bounds are
+checked when a settings object is made, whichever way: :func:`from_mapping` (a config
+section, strict: an unknown key or a value of the wrong type is an error that names its full
+key path) or a direct call (tests, library use). Registries of names that settings choose from (rasterisers,
+SGM modes, baseline modes, matchers) are declared here and imported by the modules that
+implement them.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import functools
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+from eve3d.core.scene import Camera, Eve3dError
+
+RENDER_BACKENDS = ("auto", "cpu", "torch", "gsplat")
+"""Rasterisers: ``cpu`` (our C++ tiles), ``torch`` (pure PyTorch reference), ``gsplat``
+(CUDA); ``auto`` = gsplat on a CUDA tensor when installed, else cpu."""
+SGM_MODES = {"hh": "STEREO_SGBM_MODE_HH", "hh4": "STEREO_SGBM_MODE_HH4", "3way": "STEREO_SGBM_MODE_SGBM_3WAY",
+             "sgbm": "STEREO_SGBM_MODE_SGBM"}
+"""``stereo.sgm_mode`` → OpenCV's StereoSGBM mode: 8 directions in two passes (``hh``), 4
+(``hh4``), or the single-pass variants (``3way``, ``sgbm``)."""
+BASELINE_MODES = ("disparity", "radius")
+MATCHERS = ("exhaustive", "sequential")
+GROUND_TRUTH_CHECKS = ("error", "warn", "off")
+"""What a failed ground-truth check does (``evaluate.ground_truth_check``): stop the run,
+warn and go on, or the check is skipped."""
+TNT_POINTS = ("vertices", "sampled")
+"""What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
+official toolbox reads a mesh PLY, or the vertices plus area samples."""
+PRIOR_BACKEND_DEVICES = {"sgbm": "cpu", "mccnn": "cpu", "onnx": "gpu", "oracle": "cpu"}
+"""Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs,
+MC-CNN's learned matching costs with SGM, a stereo network exported to ONNX, or the exact
+depth of a scene with a known mesh; each with
+the device its job asks a cluster for (a network runs on the CUDA provider)."""
+PRIOR_BACKENDS = tuple(PRIOR_BACKEND_DEVICES)
+
+
+def setting(default: Any = None, *, factory: Any = None, ge: float | None = None, gt: float | None = None,
+            le: float | None = None, choices: Any = None, nonzero: bool = False) -> Any:
+    """A settings field: its default (or ``factory`` for a nested settings class) and its
+    bounds, checked by :func:`check` (``ge`` ≥, ``gt`` >, ``le`` ≤, ``choices``, ``nonzero``)."""
+    bounds = {k: v for k, v in dict(ge=ge, gt=gt, le=le, choices=choices).items() if v is not None}
+    if nonzero:
+        bounds["nonzero"] = True
+    if factory is not None:
+        return field(default_factory=factory, metadata=bounds)
+    return field(default=default, metadata=bounds)
+
+
+def _kind(annotation: str) -> tuple[str, bool]:
+    """The value kind a field's annotation asks for (bool, int, float, str, tuple, mapping)
+    and whether None is allowed."""
+    optional = "None" in annotation
+    for kind in ("tuple", "dict", "bool", "float", "int", "str"):
+        if annotation.startswith(kind) or f"| {kind}" in annotation or f"{kind} |" in annotation:
+            return kind, optional
+    return "any", optional
+
+
+_KIND_WORDS = {"bool": "true or false", "int": "an integer", "float": "a number", "str": "a string",
+               "tuple": "a list of numbers", "dict": "a mapping", "any": "a value"}
+
+
+def _expected(kind: str, bounds: dict) -> str:
+    if "choices" in bounds:
+        return "one of " + ", ".join(map(str, bounds["choices"]))
+    text = _KIND_WORDS[kind]
+    limits = [f"≥ {bounds['ge']:g}" if "ge" in bounds else "", f"> {bounds['gt']:g}" if "gt" in bounds else "",
+              f"≤ {bounds['le']:g}" if "le" in bounds else "", "not 0" if bounds.get("nonzero") else ""]
+    limits = [x for x in limits if x]
+    return text + (" " + " and ".join(limits) if limits else "")
+
+
+def _coerce(kind: str, value: Any) -> tuple[bool, Any]:
+    """Whether ``value`` is of ``kind`` (an integral float counts as an int, an int as a
+    float, a list as a tuple), and the value converted to it."""
+    if kind == "bool":
+        return isinstance(value, bool), value
+    if kind in ("int", "float"):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False, value
+        if kind == "int":
+            return float(value).is_integer(), int(value) if float(value).is_integer() else value
+        return True, float(value)
+    if kind == "tuple":
+        ok = isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                      for v in value)
+        return ok, tuple(value) if ok else value
+    if kind == "dict":
+        return isinstance(value, Mapping), value
+    if kind == "str":
+        return isinstance(value, str), value
+    return True, value
+
+
+def _in_bounds(value: Any, bounds: dict) -> bool:
+    if "choices" in bounds:
+        return value in bounds["choices"]
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return True
+    return (("ge" not in bounds or value >= bounds["ge"]) and ("gt" not in bounds or value > bounds["gt"])
+            and ("le" not in bounds or value <= bounds["le"]) and not (bounds.get("nonzero") and value == 0))
+
+
+def check(obj: Any, where: str) -> None:
+    """Every field of a settings object against its kind and bounds, each value converted to
+    its kind on the way (an integral float to an int, a list to a tuple); the error names
+    ``where.field``, what is expected and what was given."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            continue
+        kind, optional = _kind(str(f.type))
+        if value is None and optional:
+            continue
+        ok, converted = _coerce(kind, value)
+        if not (ok and _in_bounds(converted, f.metadata)):
+            raise Eve3dError(f"{where}.{f.name}: expected {_expected(kind, f.metadata)}, got {value!r}")
+        setattr(obj, f.name, converted)
+
+
+def from_mapping(cls: type, values: Mapping, where: str) -> Any:
+    """``cls`` from a config section, strictly: an unknown key, a value of the wrong kind or
+    out of bounds is an error that names its full key path (``stereo.mv_views: expected an
+    integer ≥ 1, got 0``). Nested settings classes are built from nested mappings."""
+    if not isinstance(values, Mapping):
+        raise Eve3dError(f"{where}: expected a mapping, got {values!r}")
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise Eve3dError(f"{where}: unknown key(s) {', '.join(map(str, unknown))} (known: {', '.join(sorted(known))})")
+    kwargs = {}
+    for name, value in values.items():
+        nested = known[name].default_factory  # a settings class, for a nested section
+        is_section = isinstance(nested, type) and dataclasses.is_dataclass(nested)
+        kwargs[name] = from_mapping(nested, value, f"{where}.{name}") if is_section else value
+    return _made(cls, kwargs, where)
+
+
+def flag(name: str) -> str:
+    """The command-line flag of a settings field or a stage's input (``min_views`` →
+    ``--min-views``)."""
+    return "--" + name.replace("_", "-")
+
+
+def pick(cls: type, settings: Any) -> Any:
+    """The ``cls`` part of a settings object whose class derives from ``cls`` (a section's
+    settings read by one stage: the baseline of :class:`StereoSettings`)."""
+    return cls(**{f.name: getattr(settings, f.name) for f in dataclasses.fields(cls)})
+
+
+def _made(cls: type, kwargs: dict, where: str) -> Any:
+    """``cls(**kwargs)``, with a cross-field check's error re-addressed to ``where``."""
+    try:
+        return cls(**kwargs)
+    except Eve3dError as e:
+        section = getattr(cls, "SECTION", "")
+        message = str(e)
+        if section and message.startswith(section + ".") and where != section:
+            message = where + message[len(section):]
+        raise Eve3dError(message) from None
+
+
+@dataclass(frozen=True)
+class Key:
+    """One settings field as the CLI and the key tables of config/README.md present it."""
+
+    name: str
+    kind: str
+    """bool, int, float, str, tuple, dict or any (:func:`_kind`)."""
+    optional: bool
+    default: Any
+    bounds: dict
+    doc: str
+    """The field's docstring (its first sentence is the CLI help), or ""."""
+
+    @property
+    def expected(self) -> str:
+        return _expected(self.kind, self.bounds) + (" or null" if self.optional else "")
+
+
+@functools.cache
+def _field_docs() -> dict[tuple[str, str], str]:
+    """(class, field) → the string literal under the field in this module's source: the
+    field docstrings that Python itself drops."""
+    import ast
+
+    docs = {}
+    for node in ast.parse(Path(__file__).read_text()).body:
+        if isinstance(node, ast.ClassDef):
+            for a, b in zip(node.body, node.body[1:]):
+                if (isinstance(a, ast.AnnAssign) and isinstance(a.target, ast.Name) and isinstance(b, ast.Expr)
+                        and isinstance(b.value, ast.Constant) and isinstance(b.value.value, str)):
+                    docs[node.name, a.target.id] = " ".join(b.value.value.split())
+    return docs
+
+
+def keys(cls: type) -> list[Key]:
+    """The fields of a settings class (nested sections left out) with kind, default, bounds
+    and documentation; a field's docstring is looked up along the class's bases."""
+    docs = _field_docs()
+    out = []
+    for f in dataclasses.fields(cls):
+        if f.default is dataclasses.MISSING:
+            continue  # a nested section (default_factory)
+        kind, optional = _kind(str(f.type))
+        doc = next((docs[c.__name__, f.name] for c in cls.__mro__ if (c.__name__, f.name) in docs), "")
+        out.append(Key(f.name, kind, optional, f.default, dict(f.metadata), doc))
+    return out
+
+
+def sections_of(cls: type) -> dict[str, type]:
+    """The nested settings sections of ``cls`` (``lr``, ``densify``, ``onnx``) by field name."""
+    return {f.name: f.default_factory for f in dataclasses.fields(cls)
+            if isinstance(f.default_factory, type) and dataclasses.is_dataclass(f.default_factory)}
+
+
+class Checked:
+    """Base of every settings class: bounds are checked whenever one is made, and errors
+    name ``SECTION.key`` (the config section it is read from)."""
+
+    SECTION: ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        check(self, self.SECTION)
+
+
+# --------------------------------------------------------------------------- data
+
+@dataclass
+class SyntheticSettings(Checked):
+    """A generated scene (``eve3d synth``); the ``synthetic`` section holds defaults for every
+    generated scene, a scene's own ``synthetic:`` mapping overrides them and names its kind."""
+
+    SECTION: ClassVar[str] = "synthetic"
+    views: int = setting(32, ge=2)
+    """Cameras of a generated scene."""
+    width: int = setting(320, ge=16)
+    """Image width in pixels."""
+    height: int = setting(240, ge=16)
+    """Image height in pixels."""
+    seed: int = 0
+    """Seed of the texture noise and the cameras' random placement."""
+    arc: float = setting(360.0, gt=0, le=360)
+    """Azimuth range of the cameras in degrees (a DTU-like front arc for object scenes)."""
+    surface_samples: int = setting(0, ge=0)
+    """0: the sparse points are SIFT features of the photos triangulated with the known poses,
+    as a user's SfM gives them. > 0: that many exact surface samples instead, for scenes too
+    small for SIFT (the tests' tiny ones); never a benchmark's input."""
+
+
+@dataclass
+class SfmSettings(Checked):
+    SECTION: ClassVar[str] = "sfm"
+    matcher: str = setting("exhaustive", choices=MATCHERS)
+    """'exhaustive' for small unordered sets, 'sequential' for ordered captures (video)."""
+    camera_model: str = "SIMPLE_RADIAL"
+    """COLMAP model estimated for the images (undistorted to PINHOLE afterwards)."""
+    single_camera: bool = True
+    """All images share one camera (one device, fixed zoom)."""
+    max_image_size: int = setting(3200, ge=64)
+    """Longest side of the photos SfM imports (larger ones are downscaled once, before SIFT):
+    the size of the posed dataset's images, the stages' full size."""
+    min_registered_fraction: float = setting(0.9, ge=0, le=1)
+    """Fail when fewer than this fraction of the images are registered."""
+    seed: int = 0
+    """Random seed of the mapper."""
+    threads: int = setting(1, nonzero=True)
+    """Threads for extraction, matching and mapping. 1 makes SfM bit-reproducible (pycolmap's
+    multi-threaded matching and mapping are not: the worst camera moved by 0.5 % of the scene
+    radius between runs); -1 uses every core, about twice as fast on 2 cores."""
+
+
+# --------------------------------------------------------------------------- training
+
+@dataclass
+class LearningRates(Checked):
+    """Adam step sizes of 3DGS. ``means`` is multiplied by the scene scale and decays
+    exponentially to ``means_final`` × scene scale over the run."""
+
+    SECTION: ClassVar[str] = "train.lr"
+    means: float = setting(1.6e-4, gt=0)
+    """Step of the centres at the start (× scene radius)."""
+    means_final: float = setting(1.6e-6, gt=0)
+    """Step of the centres at the end (× scene radius; exponential decay)."""
+    quats: float = setting(1e-3, ge=0)
+    """Step of the rotations."""
+    log_scales: float = setting(5e-3, ge=0)
+    """Step of the log-scales."""
+    logit_opacities: float = setting(5e-2, ge=0)
+    """Step of the opacity logits."""
+    sh0: float = setting(2.5e-3, ge=0)
+    """Step of the base colour (SH degree 0)."""
+    shN: float = setting(2.5e-3 / 20, ge=0)
+    """Step of the higher SH coefficients."""
+
+
+@dataclass
+class DensifySettings(Checked):
+    """The densification policy (``eve3d.gaussians.densify.Densifier``); defaults are 3DGS's, with
+    AbsGS's split threshold."""
+
+    SECTION: ClassVar[str] = "train.densify"
+    grow_grad2d: float = setting(0.0002, gt=0)
+    """Clone when the mean gradient of the 2D mean (NDC units) exceeds this."""
+    grow_absgrad2d: float = setting(0.0008, gt=0)
+    """Split when the AbsGS absolute gradient exceeds this (with ``absgrad``)."""
+    absgrad: bool = True
+    """Split by the absolute gradient (AbsGS, PGSR); ``3dgs`` uses the plain one."""
+    grow_scale3d: float = setting(0.01, gt=0)
+    """Clone below, split above this largest scale (× scene radius)."""
+    prune_opa: float = setting(0.005, ge=0, le=1)
+    """Prune below this opacity."""
+    prune_scale3d: float = setting(0.1, gt=0)
+    """Prune above this largest scale (× scene radius; after the first opacity reset)."""
+    prune_min_views: int = setting(0, ge=0)
+    """Prune Gaussians seen by fewer views (judged after two passes over the views); 0 = off."""
+    refine_start: int = setting(500, ge=0)
+    """First step of densification."""
+    refine_stop: int = setting(15_000, ge=0)
+    """Last step of densification."""
+    refine_every: int = setting(100, ge=1)
+    """Steps between densifications."""
+    reset_every: int = setting(3000, ge=0)
+    """Opacity reset period; 0 = never (short CPU runs)."""
+    max_gaussians: int = setting(3_000_000, ge=1)
+    """Growth budget: when the candidates would exceed it, those with the largest gradient
+    (relative to their threshold) grow first. A memory and time guard; pruning goes on."""
+
+
+@dataclass
+class RenderSettings(Checked):
+    """How a model is rasterised: by the training stages, and by every stage that renders a
+    trained model (the stereo pairs' right views, the nvs protocol) the way it was trained."""
+
+    SECTION: ClassVar[str] = "train"
+    resolution: float = setting(1.0, gt=0)
+    """Image size factor for training (0.5 = half width and height)."""
+    max_side: int = setting(1600, ge=0)
+    """Cap on the training images' longest side in pixels (3DGS caps at 1.6k); 0 = none.
+    A model renders other stages' views (right views, held-out views) at this size too."""
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """RGB behind the Gaussians."""
+    backend: str = setting("auto", choices=RENDER_BACKENDS)
+    """Rasteriser (``RENDER_BACKENDS``)."""
+    antialiased: bool = True
+    """Opacity compensation for the 0.3 px² screen-space dilation (gsplat's antialiased mode).
+    Without it, the dilation widens edge-on and sub-pixel Gaussians and the optimiser shrinks
+    every surface by about a pixel footprint to match the photos' silhouettes."""
+
+    def scale(self, cam: Camera) -> float:
+        """The training size's factor of ``cam``: ``resolution``, less where the longest
+        side would exceed ``max_side``."""
+        if self.max_side:
+            return min(self.resolution, self.max_side / max(cam.width, cam.height))
+        return self.resolution
+
+    MIN_SIDE: ClassVar[int] = 8
+    """Smallest training image side in pixels (below it the rasteriser, SSIM and NCC have
+    nothing to work on; at 0 px OpenCV's resize asserts)."""
+
+    def sized(self, cam: Camera) -> Camera:
+        """``cam`` at the training size (:meth:`scale`); an error naming ``resolution`` and
+        ``max_side`` when that size is below :attr:`MIN_SIDE`."""
+        factor = self.scale(cam)
+        small = cam if factor == 1 else cam.scaled(factor)
+        if min(small.width, small.height) < self.MIN_SIDE:
+            raise Eve3dError(f"{self.SECTION}.resolution {self.resolution:g} (max_side {self.max_side}): view "
+                             f"{cam.name} ({cam.width}×{cam.height}) would be trained at {small.width}×{small.height} "
+                             f"px; the training size needs at least {self.MIN_SIDE} px a side")
+        return small
+
+
+@dataclass
+class TrainSettings(RenderSettings):
+    """What every training stage shares. Defaults are the paper's (GPU, full schedule);
+    the presets in ``config/presets`` set the CPU ones."""
+
+    SECTION: ClassVar[str] = "train"
+    iterations: int = setting(30_000, ge=0)
+    """Optimisation steps."""
+    sh_degree: int = setting(3, ge=0, le=3)
+    """Spherical-harmonics degree of the colours."""
+    sh_degree_interval: int = setting(1000, ge=1)
+    """Raise the active SH degree by one every this many steps."""
+    ssim_weight: float = setting(0.2, ge=0, le=1)
+    """L_rgb = (1 − w)·L1 + w·(1 − SSIM)."""
+    init_thickness: float = setting(0.1, gt=0, le=1)
+    """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
+    are discs in the plane of their 8 nearest points, this thin along its normal (a
+    fraction of the in-plane scale); 1 = 3DGS's isotropic balls. Balls, split in 3D while
+    they are still round, leave a cloud in front of and behind each surface whose front
+    layer is what renders: depth 0.2–0.7 % too near (docs/method.md, Choices)."""
+    init_random_points: int = setting(100_000, ge=1)
+    """Random initial points when the scene has no sparse points (``init: sparse``)."""
+    init_drop_isolated: bool = False
+    """``init: sparse`` leaves out the sparse points seen in two images only that lie far
+    from every point seen in more (:meth:`eve3d.core.scene.Scene.isolated`): SfM's outliers."""
+    device: str = "auto"
+    """``auto`` = CUDA when present, else CPU."""
+    seed: int = 0
+    """Seeds every random draw (view order, splits, NCC pixels)."""
+    checkpoint_every: int = setting(1000, ge=0)
+    """Steps between checkpoints (a killed job resumes from the last); 0 = none."""
+    holdout: int = setting(0, ge=0)
+    """Hold out every ``holdout``-th view (index % holdout == 0) for evaluation; 0 = none."""
+    previews: int = setting(3, ge=0)
+    """Views whose RGB, depth and normals are written as PNG at the end."""
+    lr: LearningRates = setting(factory=LearningRates)
+    densify: DensifySettings = setting(factory=DensifySettings)
+
+
+@dataclass
+class PretrainSettings(TrainSettings):
+    SECTION: ClassVar[str] = "pretrain"
+    iterations: int = setting(7000, ge=0)
+    holdout: int = setting(8, ge=0)
+    reinit_at: tuple[int, ...] = (2000,)
+    """Steps at which the Gaussians are re-initialised from rendered depth."""
+    reinit_points: int = setting(0, ge=0)
+    """Points sampled at a re-initialisation; 0 = as many as there are Gaussians then."""
+    simplify_at: tuple[int, ...] = (5000,)
+    """Steps at which only the highest-weight Gaussians are kept."""
+    simplify_keep: float = setting(0.6, gt=0, le=1)
+    """Fraction of Gaussians (highest blending weight first) a simplification keeps."""
+    equalize: float = setting(3.0, ge=0)
+    """The photos are fitted through one tone curve of the whole scene: contrast-limited
+    histogram equalisation of every photo's grey levels, the histogram clipped at this × its
+    mean bin count (``eve3d.core.photos.scene_tone_curve``); 0 = the photos as they are. Faint
+    texture (a dark, low-contrast wall) then weighs in the loss as much as bright texture, so
+    the model fits it, and its geometry there. The curve is written beside the PLY
+    (``tone_curve.json``) and the stereo stage matches the photos through it."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.equalize != 0 and self.equalize < 1:
+            raise Eve3dError(f"pretrain.equalize: must be 0 (off) or at least 1 (the histogram's clip limit), "
+                             f"got {self.equalize}")
+
+
+@dataclass
+class JointSettings(TrainSettings):
+    SECTION: ClassVar[str] = "joint"
+    method: str = "pgsr"
+    """The method's name (``eve3d.core.methods``): recorded, and names the progress bar."""
+    depth: str = setting("depth", choices=("depth", "depth_expected"))
+    """Depth rendered for meshing: ``depth`` (PGSR's unbiased depth) or ``depth_expected``."""
+    scale_weight: float = setting(100.0, ge=0)
+    """Flattening loss: weight × mean(min scale of the visible Gaussians)."""
+    opacity_weight: float = setting(0.0, ge=0)
+    """Opacity loss: weight × mean opacity of the visible Gaussians (3DGS-MCMC's regulariser).
+    A Gaussian whose colour matches what lies behind it (black on a black background) gets no
+    photometric gradient, and this lowers its opacity until it is pruned; any Gaussian the
+    photos need outweighs it. 0 = off."""
+    opacity_while_densifying: bool = False
+    """Stop the opacity loss where densification stops (``densify.refine_stop``): it lowers
+    the floaters while pruning can still remove them; later it would only thin the surfaces
+    (against a black background the colour makes up for the lost alpha)."""
+    opacity_spare: float = setting(0.0, ge=0)
+    """Methods with priors: the opacity loss spares the Gaussians whose centre lies within this
+    relative depth of the confident prior at its pixel (on a measured surface), so it lowers
+    only the others: floaters, and the Gaussians behind a surface or inside an object that
+    would show through a surface it made semi-transparent. 0 = spares none."""
+    dn_weight: float = setting(0.015, ge=0)
+    """Weight of the depth–normal consistency loss (PGSR)."""
+    dn_from: int = setting(7000, ge=0)
+    """First step of the depth–normal consistency loss."""
+    mv_from: int = setting(7000, ge=0)
+    """First step of the multi-view losses."""
+    geo_weight: float = setting(0.03, ge=0)
+    """Weight of the multi-view geometric loss (PGSR)."""
+    ncc_weight: float = setting(0.15, ge=0)
+    """Weight of the multi-view NCC loss (PGSR)."""
+    mv_threshold: float = setting(1.0, gt=0)
+    """Pixels whose forward–backward reprojection error φ is this large (px) are left out."""
+    ncc_patch: int = setting(7, ge=3)
+    """NCC patch size (px)."""
+    ncc_pixels: int = setting(4096, ge=1)
+    """Reference pixels per step whose patches enter the NCC loss."""
+    neighbours: int = setting(4, ge=1)
+    """Neighbour views per view (DESIGN §3 score)."""
+    exposure: bool = False
+    """Learn a 3×4 colour transform per training image (PGSR's exposure compensation)."""
+    exposure_lr: float = setting(1e-3, ge=0)
+    """Adam step of the exposure transforms."""
+    init: str = setting("sparse", choices=("sparse", "priors"))
+    """Initial Gaussians: ``sparse`` (the SfM points; random points without them) or
+    ``priors`` (points back-projected from confident prior depths, Eve3D)."""
+    init_prior_points: int = setting(500_000, ge=1)
+    """Points drawn for ``init: priors`` (the paper: 500k on DTU, 1M on T&T)."""
+    priors: str = setting("none", choices=("none", "fixed", "learnable"))
+    """Stereo priors: ``none``; ``fixed`` (D* is the target of L_prior and the neighbours'
+    depth in the LBA); ``learnable`` (D̂ per view, initialised from D*: Eve3D)."""
+    prior_weight: float = setting(0.05, ge=0)
+    """λ_prior: |D_prior − D| + ``prior_normal_weight`` · (1 − N_prior·N) on confident pixels."""
+    prior_normal_weight: float = setting(1.0, ge=0)
+    """Weight w of the normal term in L_prior."""
+    prior_normal_span: int = setting(1, ge=1)
+    """N_prior from central differences of the prior depth over ±span pixels (1 = adjacent
+    pixels; wider averages out the per-pixel noise of a matcher like SGBM)."""
+    prior_from: int = setting(500, ge=0)
+    """First step of every prior term."""
+    joint_from: int = setting(7000, ge=0)
+    """T_joint: L_prior switches from D* to D̂, L_pull starts, the LBA's reference becomes the
+    rendered depth."""
+    pull_weight: float = setting(0.05, ge=0)
+    """λ_pull: |D̂ − sg(D)| on pixels M^c does not trust."""
+    lba_weight: float = setting(0.15, ge=0)
+    """λ_lba: (geometric + photometric) averaged over the ``neighbours`` best views."""
+    prior_lr: float = setting(1e-4, ge=0)
+    """Adam step of log D̂ (a relative change of depth: the same for every scene scale)."""
+    consistent_views: int = setting(2, ge=1)
+    """M^c: a prior depth counts where at least this many neighbours confirm it geometrically
+    (``confirm_depth``), besides the stereo's own confidence and the photos (``confirm_ncc``)."""
+    confirm_depth: float = setting(0.01, gt=0)
+    """M^c: a neighbour confirms a prior depth where the point lands on its *confident* prior
+    pixels within this relative depth difference (a tolerance that stays the same at every
+    training size, where PGSR's 1 px does not)."""
+    confirm_ncc: float = setting(0.5, ge=-1, le=1)
+    """M^c: the real photos confirm a prior depth where the NCC (7×7) between the view's photo
+    and at least ``confirm_photos`` neighbours' photos warped by that depth reaches this;
+    a window without texture can neither confirm nor refute and passes."""
+    confirm_photos: int = setting(1, ge=0)
+    """M^c: neighbours whose photos must agree (``confirm_ncc``); 0 = no photometric check."""
+
+
+# --------------------------------------------------------------------------- stereo
+
+@dataclass
+class BaselineSettings(Checked):
+    """Each view's baseline B (DESIGN §2); the fields are the ``stereo.*`` config keys.
+    ``baseline: radius``: the paper's B = ``baseline_factor`` × the scene radius, one B for
+    every view. ``baseline: disparity``: B per view, so that a point at the view's median
+    rendered depth Z has the disparity ``target_disparity`` × image width, bounded by
+    B ≤ ``max_baseline`` × Z (a vergence of at most 2·atan(max_baseline / 2), so occlusions
+    stay small). A radius-based B gives an inside-out capture, whose camera radius is far
+    smaller than the distance to the walls, disparities of a few pixels."""
+
+    SECTION: ClassVar[str] = "stereo"
+    baseline: str = setting("disparity", choices=BASELINE_MODES)
+    """How each view's virtual baseline B is set: ``disparity`` = per view, for ``target_disparity`` at its median rendered depth Z, at most ``max_baseline`` × Z; ``radius`` = the paper's B = ``baseline_factor`` × scene radius for every view."""
+    baseline_factor: float = setting(0.07, gt=0)
+    """radius mode: B = factor × scene radius."""
+    target_disparity: float = setting(0.08, gt=0)
+    """disparity mode: disparity at the view's median depth, fraction of the image width."""
+    max_baseline: float = setting(0.15, gt=0)
+    """disparity mode: B at most this fraction of the view's median depth."""
+
+    def of_view(self, cam: Camera, radius: float, median_depth: float) -> float:
+        if self.baseline == "radius":
+            return self.baseline_factor * radius
+        return min(self.target_disparity * cam.width / cam.fx, self.max_baseline) * median_depth
+
+
+@dataclass
+class SgbmSettings(Checked):
+    """OpenCV StereoSGBM (P1 = 8·3·b², P2 = 32·3·b², DESIGN §6)."""
+
+    SECTION: ClassVar[str] = "stereo"
+    sgm_mode: str = setting("hh", choices=tuple(SGM_MODES))
+    """Cost aggregation (``SGM_MODES``). ``hh`` aggregates along 8 directions in two
+    passes; the single-pass modes (``3way``, ``sgbm``) only along the directions a pass from
+    the top can see, none from below, and on a surface slanted from top to bottom they
+    carry one end's disparity into the other: on exact right views of the object scene the
+    depth comes out 0.19 % (``3way``) and 0.61 % (``sgbm``) too far, −0.04 % with ``hh``.
+    ``hh`` keeps two costs per pixel and disparity (W·H·D·4 bytes: 2.1 GB at 1080×1920 with
+    256 disparities)."""
+    block_size: int = setting(5, ge=1)
+    """SGBM block size b (P1 = 8·3·b², P2 = 32·3·b²)."""
+    uniqueness: int = setting(10, ge=0)
+    """SGBM uniqueness ratio (%)."""
+    speckle_window: int = setting(100, ge=0)
+    """SGBM speckle filter: largest connected region of similar disparity treated as noise (px; 0 = off)."""
+    speckle_range: int = setting(2, ge=0)
+    """SGBM speckle filter: disparity variation within a connected region."""
+    lr_threshold: float = setting(1.0, gt=0)
+    """Left–right check: keep pixels whose two disparities differ by at most this (px)."""
+    min_texture: float = setting(0.5, ge=0)
+    """Pixels whose grey-level standard deviation over the block (0–255 scale) is below this
+    are not confident: SGM's path aggregation fills flat regions (an empty black background)
+    with disparities that pass the left–right check but mean nothing."""
+    wls: bool = False
+    """Edge-aware WLS filtering of the disparity (dense); the confidence becomes the filter's
+    own confidence map / 255 (its left–right check, lowered near depth edges)."""
+    wls_lambda: float = setting(8000.0, gt=0)
+    """WLS smoothness weight (OpenCV's default)."""
+    wls_sigma: float = setting(1.5, gt=0)
+    """WLS colour sensitivity (OpenCV's default)."""
+
+
+@dataclass
+class MatchCheck(Checked):
+    """Checks every backend's confidence passes through, independent of the matcher agreeing
+    with itself (a left–right check passes a consistent but wrong match)."""
+
+    SECTION: ClassVar[str] = "stereo"
+    ncc_threshold: float = setting(0.5, ge=0, le=1)
+    """Confident only where the photo and the right view warped back by the disparity agree:
+    their NCC over ``ncc_window``² pixels is at least this (0 = off)."""
+    ncc_window: int = setting(7, ge=3)
+    """Window of both NCC checks in pixels (odd)."""
+    range_margin: float = setting(1.0, ge=0)
+    """Not confident within this many px of either end of the disparity range searched: a
+    disparity pinned there is the matcher running out of range, not a match."""
+    mv_ncc_threshold: float = setting(0.5, ge=0, le=1)
+    """Confident only where at least ``mv_views`` of the view's ``mv_neighbours`` best
+    neighbours (``eve3d.gaussians.neighbours``) agree with the photo: NCC ≥ this between the photo and
+    the neighbour's photo warped by the prior depth (0 = off). Real photos on both sides,
+    so it catches a depth the pretrained model got wrong, which the right view inherits."""
+    mv_views: int = setting(1, ge=1)
+    """Neighbours that must agree (a view with fewer neighbours skips the check)."""
+    mv_neighbours: int = setting(4, ge=1)
+    """Best neighbours tried (``eve3d.gaussians.neighbours``)."""
+    min_alpha: float = setting(0.5, ge=0, le=1)
+    """Confident only where the pretrained model renders a surface: its alpha in the left
+    view (``stereo/alpha/``) is at least this over the whole ``edge_window`` around the
+    pixel (0 = off). Where it renders nothing (an empty background, the sky) the right view
+    is empty too, and whatever the matcher finds there is no surface."""
+    edge_window: int = setting(5, ge=0)
+    """Not confident within this window (px, about the matcher's: ``block_size`` for
+    ``sgbm``) of a disparity jump (``jump`` px between adjacent pixels, or a matched pixel
+    beside an unmatched one): a window that straddles a silhouette matches the foreground's
+    texture and gives the background beside it the foreground's disparity (0 = off)."""
+    jump: float = setting(1.0, gt=0)
+    """Disparity difference between adjacent pixels that counts as a jump (px)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.ncc_window % 2 == 0:
+            raise Eve3dError(f"stereo.ncc_window: expected an odd integer ≥ 3, got {self.ncc_window}")
+        if self.mv_views > self.mv_neighbours:
+            raise Eve3dError(f"stereo.mv_views: expected at most stereo.mv_neighbours ({self.mv_neighbours}), "
+                             f"got {self.mv_views}")
+
+
+@dataclass
+class OnnxSpec(Checked):
+    """A stereo network exported to ONNX (the ``stereo.onnx`` mapping)."""
+
+    SECTION: ClassVar[str] = "stereo.onnx"
+    model: str = ""
+    """Path of the .onnx file."""
+    left: str = "left"
+    """Name of the network's left-image input."""
+    right: str = "right"
+    """Name of the right-image input."""
+    output: str = "disp"
+    """Name of the disparity output."""
+    layout: str = setting("NCHW", choices=("NCHW", "NHWC"))
+    """Input layout, ``NCHW`` or ``NHWC`` (batch 1, RGB)."""
+    scale: float = setting(255.0, gt=0)
+    """Pixel values are fed as image / 255 × scale (255 = 0..255, 1 = 0..1), before ``mean`` and ``std``."""
+    mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Per-channel mean subtracted from the fed values."""
+    std: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Per-channel divisor: the fed values are (image / 255 × scale − mean) / std."""
+    size: tuple[int, int] | None = None
+    """Fixed network input (height, width): images are resized to it, disparity rescaled."""
+    divisor: int = setting(1, ge=1)
+    """Otherwise, pad height and width up to a multiple of this (edge values), crop the output."""
+    min_size: int = setting(1, ge=1)
+    """With ``divisor``: pad height and width up to at least this too (a network's smallest input, e.g. PSMNet's 256)."""
+    channel: int = setting(0, ge=0)
+    """Channel of the output that holds the disparity (for outputs with a channel axis)."""
+    sign: float = setting(1.0, nonzero=True)
+    """Multiply the output by this (−1 for networks that output x_right − x_left)."""
+    lr_threshold: float = setting(1.0, gt=0)
+    """Left–right check tolerance (px)."""
+
+
+@dataclass
+class MccnnSettings(Checked):
+    """MC-CNN fast's costs with SGM (the ``stereo.mccnn`` mapping; ``eve3d.priors.mccnn``)."""
+
+    SECTION: ClassVar[str] = "stereo.mccnn"
+    weights: str = ""
+    """MC-CNN fast weights (.pt); empty = the Middlebury ones the ``mccnn`` wheel ships."""
+    p1: float = setting(0.2, ge=0)
+    """SGM's penalty for a 1 px disparity change between neighbours, in cost units (1 − cos)."""
+    p2: float = setting(1.0, ge=0)
+    """SGM's penalty for a larger change."""
+    lr_threshold: float = setting(1.0, gt=0)
+    """Left–right check tolerance (px)."""
+
+
+@dataclass
+class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck):
+    """The ``stereo`` section: the prior source, the virtual baseline, SGBM's settings and
+    the confidence checks (each stage reads its part with :func:`pick`)."""
+
+    SECTION: ClassVar[str] = "stereo"
+    backend: str = setting("sgbm", choices=PRIOR_BACKENDS)
+    """Priors that ``stereo-tsdf`` and the prior methods use (``PRIOR_BACKENDS``)."""
+    onnx: OnnxSpec = setting(factory=OnnxSpec)
+    """The ``onnx`` backend's model spec."""
+    mccnn: MccnnSettings = setting(factory=MccnnSettings)
+    """The ``mccnn`` backend's settings."""
+
+
+# --------------------------------------------------------------------------- mesh and evaluation
+
+@dataclass
+class MeshSettings(Checked):
+    SECTION: ClassVar[str] = "mesh"
+    voxel: float | None = setting(None, gt=0)
+    """Voxel size in scene units; None = DESIGN §3 default (object 0.002 normalised units,
+    scene max extent / 2048) times ``coarsen``."""
+    coarsen: float = setting(1.0, gt=0)
+    """Multiplier on the default voxel (the CPU preset uses a coarser grid)."""
+    trunc_factor: float = setting(4.0, gt=0)
+    """sdf_trunc = trunc_factor × voxel."""
+    depth_max: float | None = setting(None, gt=0)
+    """Ignore depth beyond this (scene units); None = keep all (within ``region``)."""
+    region: float = setting(2.0, ge=0)
+    """The region of interest: the box of the sparse points' 5–95 % percentiles, scaled by
+    this about its centre. Only depths that land in it are fused (a sky or a far background
+    never becomes a wall), the voxel of an open scene comes from its size, and the mesh is
+    cropped to it. 0 = no region (fuse every depth)."""
+    min_confidence: float = setting(0.5, ge=0, le=1)
+    """Pixels whose confidence M^c is below this are not fused."""
+    weight_threshold: float = setting(1.0, ge=0)
+    """Minimum accumulated TSDF weight for a surface to be extracted."""
+    largest_cluster: bool | None = None
+    """Keep the largest connected component (and see ``min_cluster_fraction``); None = for
+    object scenes only."""
+    min_cluster_fraction: float = setting(0.01, ge=0, le=1)
+    """With ``largest_cluster``, also keep components with at least this fraction of the
+    largest one's triangles: a part of an object that touches the table in a thin crease
+    may fuse as its own component, while floaters are orders of magnitude smaller."""
+
+
+@dataclass
+class EvalSettings(Checked):
+    """The ``evaluate`` section of the config."""
+
+    SECTION: ClassVar[str] = "evaluate"
+    tau: float | None = setting(None, gt=0)
+    """Distance threshold of precision/recall; None = the protocol's rule (synthetic: a
+    fraction of the visible GT's bounding-box diagonal; tnt: the toolbox's per-scene table)."""
+    tau_fraction: float = setting(0.0025, gt=0)
+    """Synthetic τ = this × the diagonal of the bounding box of the GT surface the cameras see."""
+    min_views: int = setting(2, ge=1)
+    """Synthetic: a GT surface point counts as visible when this many cameras see it (2:
+    what a multi-view reconstruction can triangulate; TSDF fusion with the default
+    ``mesh.weight_threshold`` also drops surfaces fused from a single view)."""
+    samples: int = setting(500_000, ge=1000)
+    """Synthetic: surface samples scored on each of the reconstruction (inside the crop) and
+    the visible GT; with exact point-to-triangle distances the count sets only the sampling
+    noise and the memory. tnt with ``tnt_points: sampled``: at most this many area samples
+    beside the mesh's vertices."""
+    tnt_points: str = setting("vertices", choices=TNT_POINTS)
+    """tnt: the points of a mesh that are scored: ``vertices`` (as the official toolbox, which
+    reads a mesh PLY as a point cloud) or ``sampled`` (the vertices plus about one area sample
+    per (τ/2)², so a mesh coarser than τ/2 is not charged for its vertex spacing)."""
+    ground_truth_check: str = setting("error", choices=GROUND_TRUTH_CHECKS)
+    """dtu, tnt: the check, before any training, that the ground truth lines up with the
+    cameras: ``error`` stops the run, ``warn`` prints what it found and goes on, ``off`` skips
+    it. Its bounds were set on miniature downloads, not yet on the real ones."""
+    dtu_density: float = setting(0.2, gt=0)
+    """DTU: sampling density and thinning radius in mm."""
+    dtu_max_dist: float = setting(20.0, gt=0)
+    """DTU: distances at or above this (mm) are left out of the means."""
+
+
+SECTIONS: dict[str, type] = {"synthetic": SyntheticSettings, "sfm": SfmSettings, "stereo": StereoSettings,
+                             "mesh": MeshSettings, "evaluate": EvalSettings}
+"""The config's sections read as one settings object each. ``train``, ``pretrain`` and
+``joint`` are merged per stage (``eve3d.config.stage_settings``)."""
+
+
+def deep_merge(base: dict, override: dict) -> dict:
+    """``override`` on top of ``base``, recursively for nested mappings."""
+    out = copy.deepcopy(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out

@@ -1,0 +1,521 @@
+// Tile-based Gaussian compositing on the CPU (forward and backward), gsplat's rules:
+// alpha = min(0.999, o * exp(-sigma)); skip alpha < 1/255 or sigma < 0; stop before the
+// Gaussian that would take the transmittance T to <= 1e-4; pixel centres at +0.5.
+// Gaussians arrive sorted front to back, so binning them in order keeps every tile's list
+// depth-sorted. The backward pass walks each pixel's list back to front, recovering T by
+// division as gsplat does, and accumulates gradients in per-thread buffers.
+#include <torch/extension.h>
+
+#include "projection.h"
+#include "roundtrip.h"
+#include "losses.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <vector>
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+namespace {
+
+constexpr int64_t TILE = 16;
+constexpr int32_t LANES = TILE;  // a row of a tile: the pixels the vectorised loops take at once
+constexpr int64_t AHEAD = 8;      // entries ahead whose scattered per-Gaussian data is prefetched
+constexpr double ALPHA_MIN = 1.0 / 255.0;
+constexpr double ALPHA_MAX = 0.999;
+constexpr double T_MIN = 1e-4;
+
+int max_threads() {
+#ifdef _OPENMP
+    return omp_get_max_threads();
+#else
+    return 1;
+#endif
+}
+
+int thread_id() {
+#ifdef _OPENMP
+    return omp_get_thread_num();
+#else
+    return 0;
+#endif
+}
+
+// Per-tile lists of Gaussian indices (CSR): offsets (tiles + 1) and ids. boxes (V, 4) belong to
+// the visible Gaussians in depth order; ids are their indices among all N (visible[rank]).
+std::vector<torch::Tensor> bin_tiles(const torch::Tensor& boxes, const torch::Tensor& visible, int64_t width,
+                                     int64_t height) {
+    const int64_t tiles_x = (width + TILE - 1) / TILE, tiles_y = (height + TILE - 1) / TILE;
+    const int64_t n = boxes.size(0);
+    auto b = boxes.accessor<int64_t, 2>();
+    const auto vis_c = visible.contiguous();
+    const int64_t* vis = vis_c.data_ptr<int64_t>();
+    std::vector<int64_t> counts(tiles_x * tiles_y + 1, 0);
+    for (int64_t g = 0; g < n; ++g) {
+        if (b[g][2] < b[g][0] || b[g][3] < b[g][1]) continue;
+        for (int64_t ty = b[g][1] / TILE; ty <= b[g][3] / TILE; ++ty)
+            for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) counts[ty * tiles_x + tx + 1]++;
+    }
+    for (size_t i = 1; i < counts.size(); ++i) counts[i] += counts[i - 1];
+    auto offsets = torch::from_blob(counts.data(), {(int64_t)counts.size()}, torch::kInt64).clone();
+    auto ids = torch::empty({counts.back()}, torch::kInt64);
+    int64_t* out = ids.data_ptr<int64_t>();
+    std::vector<int64_t> fill(counts.begin(), counts.end() - 1);
+    for (int64_t g = 0; g < n; ++g) {
+        if (b[g][2] < b[g][0] || b[g][3] < b[g][1]) continue;
+        for (int64_t ty = b[g][1] / TILE; ty <= b[g][3] / TILE; ++ty)
+            for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) out[fill[ty * tiles_x + tx]++] = vis[g];
+    }
+    return {offsets, ids};
+}
+
+// exp(x) in a form the compiler vectorises across a row of pixels (glibc's vector exp needs
+// -ffast-math, which would also drop the NaN tests below): x = n ln2 + r with |r| <= ln2 / 2,
+// exp(r) by its Taylor polynomial (degree 7 in float, 13 in double: truncation below half an
+// ulp), times 2^n built in the exponent bits. Within a few ulp of std::exp; arguments
+// outside [-80, 80] (and NaN) are clamped, as only masked-out pixels reach them.
+template <typename scalar_t>
+struct ExpBits;
+template <>
+struct ExpBits<float> {
+    using int_t = int32_t;
+    static constexpr int degree = 7, mantissa = 23, bias = 127;
+};
+template <>
+struct ExpBits<double> {
+    using int_t = int64_t;
+    static constexpr int degree = 13, mantissa = 52, bias = 1023;
+};
+
+template <typename scalar_t>
+inline scalar_t vexp(scalar_t x) {
+    using B = ExpBits<scalar_t>;
+    x = x >= (scalar_t)-80 ? x : (scalar_t)-80;  // also NaN
+    x = x <= (scalar_t)80 ? x : (scalar_t)80;
+    // round to nearest by adding and removing 1.5 * 2^mantissa (std::floor would not vectorise)
+    constexpr scalar_t shifter = (scalar_t)1.5 * (scalar_t)(1LL << B::mantissa);
+    const scalar_t n = (x * (scalar_t)1.4426950408889634 + shifter) - shifter;
+    const scalar_t r = (x - n * (scalar_t)0.693145751953125) - n * (scalar_t)1.428606820309417e-06;
+    scalar_t p = 1;
+#pragma GCC unroll 16
+    for (int k = B::degree; k >= 1; --k) p = (scalar_t)1 + r * p * (scalar_t)(1.0 / k);
+    const typename B::int_t bits = ((typename B::int_t)n + B::bias) << B::mantissa;
+    scalar_t scale;
+    std::memcpy(&scale, &bits, sizeof(scale));
+    return p * scale;
+}
+
+// sigma beyond which alpha is surely below 1/255 (with a margin, so the exact test decides
+// near the threshold).
+template <typename scalar_t>
+std::vector<scalar_t> sigma_cutoffs(const scalar_t* o, int64_t n) {
+    std::vector<scalar_t> cut(n);
+    for (int64_t g = 0; g < n; ++g) cut[g] = std::log((double)o[g] / ALPHA_MIN) + 1e-3;
+    return cut;
+}
+
+// One tile's list entry: the Gaussian's 2D parameters, and the rows of the tile its
+// conservative footprint reaches: the ellipse sigma <= K, K exceeding the cutoff by a margin
+// (1% + 0.01), bounded in double. Rows outside it have sigma beyond the cutoff at every pixel,
+// so the per-pixel test would reject them anyway; a conic that is not positive definite
+// reaches every row.
+template <typename scalar_t>
+struct Entry {
+    scalar_t mx, my, a, b, c, o, cut;
+    int64_t g, ylo, yhi;  // ylo > yhi: no row
+};
+
+template <typename scalar_t>
+void tile_entries(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* cut, const int64_t* ids,
+                  int64_t begin, int64_t end, int64_t y0, int64_t y1, std::vector<Entry<scalar_t>>& out) {
+    out.resize(end - begin);
+    for (int64_t k = begin; k < end; ++k) {
+        const int64_t g = ids[k];
+        if (k + AHEAD < end) {
+            const int64_t ga = ids[k + AHEAD];
+            __builtin_prefetch(m + 2 * ga);
+            __builtin_prefetch(c + 3 * ga);
+            __builtin_prefetch(o + ga);
+            __builtin_prefetch(cut + ga);
+        }
+        auto& e = out[k - begin];
+        e = {m[2 * g], m[2 * g + 1], c[3 * g], c[3 * g + 1], c[3 * g + 2], o[g], cut[g], g, y0, y1 - 1};
+        const double a = e.a, b = e.b, cc = e.c, my = e.my, det = a * cc - b * b;
+        if (!(a > 0 && det > 0 && std::isfinite(det) && std::isfinite((double)e.mx) && std::isfinite(my))) continue;
+        const double K = std::max((double)e.cut, 0.0) * 1.01 + 0.01;
+        const double ext = std::sqrt(2 * K * a / det);
+        e.ylo = std::max(y0, (int64_t)std::ceil(my - ext - 0.5 - 1e-3));
+        e.yhi = std::min(y1 - 1, (int64_t)std::floor(my + ext - 0.5 + 1e-3));
+    }
+}
+
+// One Gaussian against the TILE pixels of a row (x0 + i, py): sigma, exp(-sigma), alpha and
+// whether the Gaussian may count there (inside the image, sigma in [0, cutoff], alpha at least
+// 1/255), computed for all lanes at once.
+template <typename scalar_t>
+struct RowSplat {
+    scalar_t dx[TILE], ex[TILE], alpha[TILE];
+    int32_t ok[TILE];
+};
+
+template <typename scalar_t>
+inline void row_splat(const Entry<scalar_t>& e, int64_t x0, int64_t tw, int64_t py, RowSplat<scalar_t>& s) {
+    // locals, so that the compiler need not fear the stores below alias the entry
+    const scalar_t mx = e.mx, a = e.a, b = e.b, c = e.c, o = e.o, cut = e.cut;
+    const int32_t n = (int32_t)tw;
+    const scalar_t dy = (scalar_t)py + (scalar_t)0.5 - e.my;
+    scalar_t *sdx = s.dx, *sex = s.ex, *salpha = s.alpha;
+    int32_t* sok = s.ok;
+#pragma omp simd
+    for (int32_t i = 0; i < LANES; ++i) {
+        const scalar_t dx = ((scalar_t)x0 + (scalar_t)i) + (scalar_t)0.5 - mx;
+        const scalar_t sigma = (scalar_t)0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
+        const scalar_t ex = vexp(-sigma);
+        const scalar_t raw = o * ex;
+        const scalar_t alpha = std::min(raw, (scalar_t)ALPHA_MAX);
+        sdx[i] = dx;
+        sex[i] = ex;
+        salpha[i] = alpha;
+        sok[i] = i < n && sigma >= 0 && sigma <= cut && alpha >= (scalar_t)ALPHA_MIN ? 1 : 0;
+    }
+}
+
+// Tiles in parallel; within a tile the list is walked once, in order, and each entry is
+// composited into the rows it reaches, TILE pixels at a time (vectorised). Each pixel sees the
+// same entries in the same order with the same arithmetic as a per-pixel loop (with vexp), and
+// keeps its own transmittance, stop flag and count of entries consumed.
+template <typename scalar_t>
+int64_t forward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
+                     int64_t V, const int64_t* off, const int64_t* ids, int64_t tiles, int64_t width, int64_t height,
+                     scalar_t* img, scalar_t* tf, int32_t* used) {
+    constexpr int64_t P = TILE * TILE;
+    const int64_t tiles_x = (width + TILE - 1) / TILE;
+    const auto cut = sigma_cutoffs(o, V);
+    int64_t n_pairs = 0;
+#pragma omp parallel reduction(+ : n_pairs)
+    {
+        std::vector<Entry<scalar_t>> entries;
+        std::vector<scalar_t> acc(C * P);
+        RowSplat<scalar_t> s;
+#pragma omp for schedule(dynamic)
+        for (int64_t t = 0; t < tiles; ++t) {
+            const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
+            const int64_t tw = std::min(TILE, width - x0), th = std::min(TILE, height - y0);
+            tile_entries(m, c, o, cut.data(), ids, off[t], off[t + 1], y0, y0 + th, entries);
+            scalar_t T[P];
+            int32_t last[P], done[P];
+            int64_t row_live[TILE];
+            for (int64_t i = 0; i < P; ++i) T[i] = 1, last[i] = 0, done[i] = 0;
+            for (int64_t r = 0; r < TILE; ++r) row_live[r] = r < th ? tw : 0;
+            std::fill(acc.begin(), acc.end(), (scalar_t)0);
+            int64_t live = tw * th;
+            for (int64_t j = 0; j < (int64_t)entries.size() && live > 0; ++j) {
+                const auto& e = entries[j];
+                const scalar_t* fg = f + e.g * C;
+                if (j + AHEAD < (int64_t)entries.size()) __builtin_prefetch(f + entries[j + AHEAD].g * C);
+                for (int64_t py = e.ylo; py <= e.yhi; ++py) {
+                    const int64_t r = py - y0;
+                    if (!row_live[r]) continue;
+                    row_splat(e, x0, tw, py, s);
+                    scalar_t* Tr = T + r * TILE;
+                    int32_t *dr = done + r * TILE, *lr = last + r * TILE;
+                    scalar_t w[TILE];
+                    const int32_t jj = (int32_t)(j + 1);
+                    int32_t ended = 0, added = 0;
+#pragma omp simd reduction(+ : ended, added)
+                    for (int32_t i = 0; i < LANES; ++i) {
+                        const int32_t ok = s.ok[i] & (1 - dr[i]);
+                        const scalar_t next_t = Tr[i] * (1 - s.alpha[i]);
+                        const int32_t end = ok & (next_t <= (scalar_t)T_MIN ? 1 : 0);
+                        const int32_t use = ok & (1 - end);
+                        w[i] = use ? s.alpha[i] * Tr[i] : (scalar_t)0;
+                        Tr[i] = use ? next_t : Tr[i];
+                        lr[i] = use ? jj : lr[i];
+                        dr[i] |= end;
+                        ended += end;
+                        added += use;
+                    }
+                    if (added)
+                        for (int64_t ch = 0; ch < C; ++ch) {
+                            scalar_t* a = acc.data() + ch * P + r * TILE;
+#pragma omp simd
+                            for (int32_t i = 0; i < LANES; ++i) a[i] += w[i] * fg[ch];
+                        }
+                    row_live[r] -= ended;
+                    live -= ended;
+                    n_pairs += added;
+                }
+            }
+            for (int64_t r = 0; r < th; ++r)
+                for (int64_t i = 0; i < tw; ++i) {
+                    const int64_t p = (y0 + r) * width + x0 + i, q = r * TILE + i;
+                    for (int64_t ch = 0; ch < C; ++ch) img[p * C + ch] = acc[ch * P + q];
+                    tf[p] = T[q];
+                    used[p] = last[q];
+                }
+        }
+    }
+    return n_pairs;
+}
+
+// The list walked back to front, tile by tile; each pixel recovers the transmittance in front
+// of an entry by division (as gsplat does) and the entry's gradient is summed over the tile's
+// pixels in lanes, then added once into this thread's buffer.
+template <typename scalar_t>
+void backward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
+                   int64_t V, const int64_t* off, const int64_t* gids, int64_t tiles, int64_t width,
+                   int64_t height, const scalar_t* tf, const int32_t* used, const scalar_t* gi,
+                   const scalar_t* ga, scalar_t* all) {
+    constexpr int64_t P = TILE * TILE;
+    const int64_t K = 8 + C;  // per Gaussian: mean2d (2), conic (3), opacity, features (C), |mean2d| (2)
+    const int64_t tiles_x = (width + TILE - 1) / TILE;
+    const auto cut = sigma_cutoffs(o, V);
+#pragma omp parallel
+    {
+        std::vector<Entry<scalar_t>> entries;
+        std::vector<scalar_t> grad(C * P), lanes(K * TILE);
+        RowSplat<scalar_t> s;
+        scalar_t* buf = all + (int64_t)thread_id() * V * K;
+#pragma omp for schedule(dynamic)
+        for (int64_t t = 0; t < tiles; ++t) {
+            const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
+            const int64_t tw = std::min(TILE, width - x0), th = std::min(TILE, height - y0);
+            tile_entries(m, c, o, cut.data(), gids, off[t], off[t + 1], y0, y0 + th, entries);
+            scalar_t T[P], behind[P], g_alpha[P];
+            int32_t count[P];
+            int64_t row_max[TILE], kmax = 0;
+            std::fill(grad.begin(), grad.end(), (scalar_t)0);
+            for (int64_t r = 0; r < TILE; ++r) {
+                row_max[r] = 0;
+                for (int64_t i = 0; i < TILE; ++i) {
+                    const int64_t q = r * TILE + i, p = (y0 + r) * width + x0 + i;
+                    const bool in = r < th && i < tw;
+                    T[q] = in ? tf[p] : 1;
+                    behind[q] = 0;
+                    count[q] = in ? used[p] : 0;
+                    g_alpha[q] = in ? ga[p] : 0;
+                    for (int64_t ch = 0; ch < C; ++ch) grad[ch * P + q] = in ? gi[p * C + ch] : 0;
+                    row_max[r] = std::max(row_max[r], (int64_t)count[q]);
+                }
+                kmax = std::max(kmax, row_max[r]);
+            }
+            for (int64_t j = kmax - 1; j >= 0; --j) {
+                const auto& e = entries[j];
+                const scalar_t* fg = f + e.g * C;
+                if (j >= AHEAD) {  // Gaussians come in depth order, scattered in memory
+                    const int64_t g = entries[j - AHEAD].g;
+                    __builtin_prefetch(f + g * C);
+                    __builtin_prefetch(buf + g * K, 1);
+                    __builtin_prefetch(buf + g * K + K - 1, 1);
+                }
+                bool any = false;
+                for (int64_t py = e.ylo; py <= e.yhi; ++py) {
+                    const int64_t r = py - y0;
+                    if (j >= row_max[r]) continue;
+                    row_splat(e, x0, tw, py, s);
+                    scalar_t *Tr = T + r * TILE, *br = behind + r * TILE;
+                    const int32_t* cr = count + r * TILE;
+                    scalar_t w[TILE], dl_dw[TILE];
+                    int32_t ok[TILE];
+                    const int32_t jj = (int32_t)j;
+                    int32_t n_ok = 0;
+#pragma omp simd reduction(+ : n_ok)
+                    for (int32_t i = 0; i < LANES; ++i) {
+                        ok[i] = s.ok[i] & (jj < cr[i] ? 1 : 0);
+                        Tr[i] = ok[i] ? Tr[i] / (1 - s.alpha[i]) : Tr[i];  // transmittance in front of g
+                        w[i] = ok[i] ? s.alpha[i] * Tr[i] : (scalar_t)0;
+                        dl_dw[i] = g_alpha[r * TILE + i];
+                        n_ok += ok[i];
+                    }
+                    if (!n_ok) continue;
+                    if (!any) {
+                        std::fill(lanes.begin(), lanes.end(), (scalar_t)0);
+                        any = true;
+                    }
+                    for (int64_t ch = 0; ch < C; ++ch) {
+                        const scalar_t* G = grad.data() + ch * P + r * TILE;
+                        scalar_t* L = lanes.data() + (6 + ch) * TILE;
+#pragma omp simd
+                        for (int32_t i = 0; i < LANES; ++i) {
+                            dl_dw[i] += G[i] * fg[ch];
+                            L[i] += w[i] * G[i];
+                        }
+                    }
+                    scalar_t* L = lanes.data();
+                    const scalar_t dy = (scalar_t)py + (scalar_t)0.5 - e.my;
+#pragma omp simd
+                    for (int32_t i = 0; i < LANES; ++i) {
+                        const scalar_t one_minus = 1 - s.alpha[i];
+                        scalar_t dl_dalpha = Tr[i] * dl_dw[i] - br[i] / one_minus;
+                        br[i] += w[i] * dl_dw[i];
+                        const scalar_t raw = e.o * s.ex[i];
+                        dl_dalpha = raw > (scalar_t)ALPHA_MAX ? (scalar_t)0 : dl_dalpha;  // clamped: flat
+                        dl_dalpha = ok[i] ? dl_dalpha : (scalar_t)0;
+                        const scalar_t dl_dsigma = -dl_dalpha * raw;
+                        const scalar_t dx = s.dx[i];
+                        // selected, not multiplied: a masked-out lane's terms may be NaN
+                        const scalar_t dmx = ok[i] ? -dl_dsigma * (e.a * dx + e.b * dy) : (scalar_t)0;
+                        const scalar_t dmy = ok[i] ? -dl_dsigma * (e.b * dx + e.c * dy) : (scalar_t)0;
+                        L[i] += dmx;
+                        L[TILE + i] += dmy;
+                        L[2 * TILE + i] += (scalar_t)0.5 * dl_dsigma * dx * dx;
+                        L[3 * TILE + i] += dl_dsigma * dx * dy;
+                        L[4 * TILE + i] += (scalar_t)0.5 * dl_dsigma * dy * dy;
+                        L[5 * TILE + i] += dl_dalpha * s.ex[i];
+                        L[(6 + C) * TILE + i] += std::abs(dmx);
+                        L[(7 + C) * TILE + i] += std::abs(dmy);
+                    }
+                }
+                if (any) {
+                    scalar_t* b = buf + e.g * K;
+                    for (int64_t q = 0; q < K; ++q) {
+                        scalar_t sum = 0;
+                        for (int64_t i = 0; i < TILE; ++i) sum += lanes[q * TILE + i];
+                        b[q] += sum;
+                    }
+                }
+            }
+        }
+    }
+}
+
+}  // namespace
+
+// Returns image (H*W, C), final transmittance (H*W), per-pixel count of list entries
+// consumed (H*W, int32), tile offsets, tile ids and the number of pairs composited.
+std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
+                                   torch::Tensor feats, torch::Tensor boxes, torch::Tensor visible, int64_t width,
+                                   int64_t height) {
+    auto bins = bin_tiles(boxes, visible, width, height);
+    auto image = torch::zeros({height * width, feats.size(1)}, feats.options());
+    auto final_t = torch::ones({height * width}, feats.options());
+    auto consumed = torch::zeros({height * width}, torch::kInt32);
+    int64_t n_pairs = 0;
+    AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "eve3d_rasterize_forward", [&] {
+        n_pairs = forward_impl<scalar_t>(
+            means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), opac.data_ptr<scalar_t>(),
+            feats.data_ptr<scalar_t>(), feats.size(1), feats.size(0), bins[0].data_ptr<int64_t>(), bins[1].data_ptr<int64_t>(),
+            bins[0].size(0) - 1, width, height, image.data_ptr<scalar_t>(), final_t.data_ptr<scalar_t>(),
+            consumed.data_ptr<int32_t>());
+    });
+    return {image, final_t, consumed, bins[0], bins[1], torch::tensor(n_pairs)};
+}
+
+// Gradients for means2d (V, 2), conics (V, 3), opacities (V), features (V, C) and the
+// per-pixel absolute means2d gradients summed per Gaussian (V, 2).
+std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
+                                    torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids,
+                                    torch::Tensor final_t, torch::Tensor consumed, torch::Tensor grad_image,
+                                    torch::Tensor grad_alpha, int64_t width, int64_t height) {
+    const int64_t C = feats.size(1), V = feats.size(0);
+    auto buffers = torch::zeros({max_threads(), V, 8 + C}, feats.options());
+    AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "eve3d_rasterize_backward", [&] {
+        backward_impl<scalar_t>(
+            means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), opac.data_ptr<scalar_t>(),
+            feats.data_ptr<scalar_t>(), C, V, offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(),
+            offsets.size(0) - 1, width, height, final_t.data_ptr<scalar_t>(), consumed.data_ptr<int32_t>(),
+            grad_image.data_ptr<scalar_t>(), grad_alpha.data_ptr<scalar_t>(), buffers.data_ptr<scalar_t>());
+    });
+    auto total = buffers.sum(0);
+    return {total.slice(1, 0, 2), total.slice(1, 2, 5), total.select(1, 5), total.slice(1, 6, 6 + C),
+            total.slice(1, 6 + C, 8 + C)};
+}
+
+namespace {
+
+// Stable LSD radix sort of indices by key (unsigned integers ordered as the values are).
+template <typename key_t>
+void radix_sort(std::vector<key_t>& keys, std::vector<int64_t>& idx) {
+    const size_t n = keys.size();
+    std::vector<key_t> k2(n);
+    std::vector<int64_t> i2(n);
+    for (int shift = 0; shift < (int)(8 * sizeof(key_t)); shift += 8) {
+        size_t count[257] = {0};
+        for (size_t i = 0; i < n; ++i) count[((keys[i] >> shift) & 0xff) + 1]++;
+        if (count[((keys[0] >> shift) & 0xff) + 1] == n) continue;  // one bucket: order unchanged
+        for (int b = 0; b < 256; ++b) count[b + 1] += count[b];
+        for (size_t i = 0; i < n; ++i) {
+            const size_t d = count[(keys[i] >> shift) & 0xff]++;
+            k2[d] = keys[i];
+            i2[d] = idx[i];
+        }
+        keys.swap(k2);
+        idx.swap(i2);
+    }
+}
+
+template <typename scalar_t, typename key_t>
+void sort_by_depth(const scalar_t* depths, std::vector<int64_t>& idx) {
+    if (idx.empty()) return;
+    std::vector<key_t> keys(idx.size());
+    for (size_t i = 0; i < idx.size(); ++i) {
+        key_t bits;
+        std::memcpy(&bits, depths + idx[i], sizeof(key_t));
+        const key_t sign = (key_t)1 << (8 * sizeof(key_t) - 1);
+        keys[i] = (bits & sign) ? ~bits : (bits | sign);  // float order (-0 before +0; no NaN here)
+    }
+    radix_sort(keys, idx);
+}
+
+}  // namespace
+
+// eve3d.gaussians.render.projection.front_to_back in C++: the Gaussians with a positive radius, sorted
+// stably by depth, and their inclusive pixel boxes (V, 4) x0, y0, x1, y1, computed with the
+// same float operations.
+std::vector<torch::Tensor> front_to_back(torch::Tensor radii, torch::Tensor depths, torch::Tensor means2d,
+                                         int64_t width, int64_t height) {
+    radii = radii.to(torch::kInt32).contiguous();
+    means2d = means2d.contiguous();
+    depths = depths.to(means2d.scalar_type()).contiguous();
+    const int64_t n = radii.size(0);
+    const int32_t* r = radii.data_ptr<int32_t>();
+    std::vector<int64_t> idx;
+    idx.reserve(n);
+    for (int64_t i = 0; i < n; ++i)
+        if (r[2 * i] > 0 || r[2 * i + 1] > 0) idx.push_back(i);
+    torch::Tensor boxes;
+    AT_DISPATCH_FLOATING_TYPES(means2d.scalar_type(), "eve3d_front_to_back", [&] {
+        if (sizeof(scalar_t) == 4)
+            sort_by_depth<scalar_t, uint32_t>(depths.data_ptr<scalar_t>(), idx);
+        else
+            sort_by_depth<scalar_t, uint64_t>(depths.data_ptr<scalar_t>(), idx);
+        const int64_t v = idx.size();
+        boxes = torch::empty({v, 4}, torch::kInt64);
+        int64_t* b = boxes.data_ptr<int64_t>();
+        const scalar_t* m = means2d.data_ptr<scalar_t>();
+        const scalar_t half = (scalar_t)0.5, big = (scalar_t)1e12;
+        const scalar_t limit[2] = {(scalar_t)(width - 1), (scalar_t)(height - 1)};
+        for (int64_t j = 0; j < v; ++j) {
+            for (int a = 0; a < 2; ++a) {
+                const scalar_t mm = m[2 * idx[j] + a], rr = (scalar_t)r[2 * idx[j] + a];
+                scalar_t lo = std::ceil(mm - rr - half);
+                lo = lo < 0 ? (scalar_t)0 : lo;
+                scalar_t hi = std::floor(mm + rr - half);
+                hi = hi < limit[a] ? hi : limit[a];
+                b[4 * j + a] = (int64_t)std::min(lo, big);
+                b[4 * j + 2 + a] = (int64_t)std::max(hi, -big);
+            }
+        }
+    });
+    auto visible = torch::from_blob(idx.data(), {(int64_t)idx.size()}, torch::kInt64).clone();
+    return {visible, boxes};
+}
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+    m.def("forward", &forward, "tile-based Gaussian compositing (forward)");
+    m.def("backward", &backward, "tile-based Gaussian compositing (backward)");
+    m.def("front_to_back", &front_to_back, "visible Gaussians sorted by depth, and their pixel boxes");
+    m.def("project_forward", &project_forward, "fused EWA projection and PGSR planes (forward)");
+    m.def("project_backward", &project_backward, "fused EWA projection and PGSR planes (backward)");
+    m.def("roundtrip_forward", &roundtrip_forward, "PGSR's multi-view round trip against K neighbours (forward)");
+    m.def("roundtrip_backward", &roundtrip_backward, "PGSR's multi-view round trip (backward)");
+    m.def("ncc_forward", &ncc_forward, "1 - NCC of homography-warped patches against K neighbours (forward)");
+    m.def("ncc_backward", &ncc_backward, "1 - NCC of homography-warped patches (backward)");
+    m.def("ssim_forward", &ssim_forward, "mean SSIM, Gaussian window, zero padding (forward)");
+    m.def("ssim_backward", &ssim_backward, "mean SSIM (backward, first image)");
+    m.def("depth_normal_forward", &depth_normal_forward, "normals of a depth map (forward)");
+    m.def("depth_normal_backward", &depth_normal_backward, "normals of a depth map (backward)");
+}

@@ -1,0 +1,163 @@
+"""The Gaussian training loop shared by the pretrain and joint stages.
+
+A stage builds a :class:`Trainer` (the scene's views at the training resolution, an empty
+:class:`~eve3d.gaussians.train_state.TrainState` and the run's checkpoint), gives its state the initial
+Gaussians (:func:`initial_points`, or the stage's own) and any further parameters, and hands
+:meth:`Trainer.run` a function that returns the loss terms of one step. The loop is the
+method's pseudo-code; the schedules (means learning rate, SH degree, view order), the
+densification calls, when to resume and checkpoint, the NaN stop and the progress bar live
+here once. Each part it composes does one job: :mod:`eve3d.gaussians.views` (images, train/held-out
+split), :mod:`eve3d.gaussians.train_state` (parameters, optimisers, checkpoint contents),
+:func:`eve3d.gaussians.render.render_model` (rendering); :mod:`eve3d.gaussians.view_report` scores and previews
+the finished model.
+
+Every random draw goes through the state's one seeded ``torch.Generator``, which is
+checkpointed, so a killed run that resumes from its last checkpoint continues the same sequence.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.settings import TrainSettings
+from eve3d.gaussians.losses import psnr, rgb_loss
+from eve3d.gaussians.model import GaussianModel
+from eve3d.gaussians.render import RenderOutput, render_model
+from eve3d.gaussians.train_state import Checkpoint, TrainState
+from eve3d.gaussians.views import View, Views, pick_device
+
+LossTerms = Callable[[int, View, RenderOutput], dict[str, torch.Tensor]]
+"""``(step, view, rendered view) -> weighted loss terms``, whose sum a step minimises."""
+
+
+def initial_points(scene: Scene, count: int, rng: np.random.Generator,
+                   drop_isolated: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """The scene's sparse points and colours (without its :meth:`~eve3d.core.scene.Scene.isolated`
+    ones if ``drop_isolated``), or ``count`` random points in the cameras' bounding sphere
+    when there are none (3DGS's random initialisation)."""
+    if scene.points is not None and len(scene.points) >= 4:
+        points, colors = scene.points, scene.point_colors
+        if drop_isolated:
+            keep = ~scene.isolated()
+            points, colors = points[keep], None if colors is None else colors[keep]
+        return points, None if colors is None else colors / 255.0
+    d = rng.normal(size=(count, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pts = scene.center + d * scene.radius * rng.random((count, 1)) ** (1 / 3)
+    return pts, rng.random((count, 3))
+
+
+class NonFiniteLoss(Eve3dError):
+    """A loss term became NaN or infinite."""
+
+
+class Trainer:
+    """Optimises the Gaussians of its :class:`TrainState` on a scene's views; see the module
+    docstring. ``views``, ``state`` and ``checkpoint`` are its parts, for the stage to set up."""
+
+    def __init__(self, scene: Scene, settings: TrainSettings, work_dir: Path, name: str,
+                 tone: np.ndarray | None = None):
+        self.s, self.name = settings, name
+        self.device = pick_device(settings.device)
+        self.views = Views.load(scene, settings, settings.holdout, self.device, tone)
+        self.state = TrainState(settings, scene.radius, len(self.views), self.device)
+        self.checkpoint = Checkpoint(work_dir, settings, scene, name)
+
+    @property
+    def model(self) -> GaussianModel:
+        """The Gaussians being trained."""
+        return self.state.model
+
+    @property
+    def generator(self) -> torch.Generator:
+        """The run's seeded generator: a loss that draws at random draws from it."""
+        return self.state.generator
+
+    def means_lr(self, step: int) -> float:
+        """Exponential decay from ``lr.means`` to ``lr.means_final`` (× scene scale)."""
+        t = min(step / max(self.s.iterations, 1), 1.0)
+        lr0, lr1 = self.s.lr.means, self.s.lr.means_final
+        return self.state.scene_scale * math.exp((1 - t) * math.log(lr0) + t * math.log(lr1))
+
+    def sh_degree(self, step: int) -> int:
+        """SH degree in use at ``step``: one more every ``sh_degree_interval`` steps."""
+        return min(self.s.sh_degree, step // max(self.s.sh_degree_interval, 1))
+
+    def render(self, view: View, step: int | None = None, **kw) -> RenderOutput:
+        """The current model from a training view, with the SH degree of ``step`` (default: all)."""
+        return render_model(self.model, view.cam, self.s, None if step is None else self.sh_degree(step), **kw)
+
+    def photometric_terms(self, step: int, view: View, out: RenderOutput) -> dict[str, torch.Tensor]:
+        """The loss of a photometric-only stage: L_rgb."""
+        return {"rgb": rgb_loss(out.rgb, view.image, self.s.ssim_weight)}
+
+    def next_view(self) -> View:
+        """Training views in a fresh seeded permutation per pass."""
+        st = self.state
+        if not st.order:
+            perm = torch.randperm(len(self.views.train_ids), generator=st.generator).tolist()
+            st.order = [self.views.train_ids[i] for i in perm]
+        return self.views[st.order.pop()]
+
+    def run(self, loss_terms: LossTerms, events: Callable[[int], None] | None = None,
+            until: int | None = None) -> None:
+        """Optimise until ``iterations``. ``loss_terms(step, view, out)`` returns the weighted
+        terms whose sum is minimised; ``events(step)`` runs after each step (re-initialisation,
+        simplification). Resumes from the checkpoint in ``work_dir`` when it matches.
+        ``until``: stop earlier, after that many steps (a benchmark's window of steps)."""
+        st = self.state
+        self.checkpoint.resume(st)
+        end = self.s.iterations if until is None else min(until, self.s.iterations)
+        progress = _Progress(self.name, self.s.iterations, st.step)
+        while st.step < end:
+            step = st.step
+            st.set_means_lr(self.means_lr(step))
+            view = self.next_view()
+            out = self.render(view, step, absgrad=self.s.densify.absgrad)
+            terms = loss_terms(step, view, out)
+            loss = sum(terms.values())
+            if not torch.isfinite(loss):
+                bad = [k for k, v in terms.items() if not torch.isfinite(v)]
+                stage = self.name if self.name == self.s.SECTION else f"{self.s.SECTION} ({self.name})"  # joint (pgsr)
+                progress.close()  # the error starts on a line of its own, not after the bar
+                raise NonFiniteLoss(
+                    f"{stage}: loss term {', '.join(bad) or 'total'} is not finite at iteration {step}; "
+                    f"the last good checkpoint is kept in {self.checkpoint.path} (step {self.checkpoint.saved_step()})")
+            loss.backward()
+            st.optimizer_step()
+            st.step = step + 1
+            with torch.no_grad():
+                st.densify(out, view.index)
+                if events is not None:
+                    events(st.step)
+            progress.update(st.step, float(loss.detach()), psnr(out.rgb.clamp(0, 1), view.image), len(self.model))
+            if self.s.checkpoint_every and st.step % self.s.checkpoint_every == 0 and st.step < self.s.iterations:
+                self.checkpoint.save(st)
+        progress.close()
+
+
+class _Progress:
+    """The progress bar, with running means of the loss and the PSNR."""
+
+    def __init__(self, name: str, total: int, initial: int):
+        self.total = total
+        self.bar = tqdm(total=total, initial=initial, desc=name, unit="it", file=sys.stderr, mininterval=1.0)
+        self.loss: float | None = None
+        self.psnr: float | None = None
+
+    def update(self, step: int, loss: float, psnr: float, gaussians: int) -> None:
+        self.loss = loss if self.loss is None else 0.9 * self.loss + 0.1 * loss
+        self.psnr = psnr if self.psnr is None else 0.9 * self.psnr + 0.1 * psnr
+        self.bar.update(1)
+        if step % 10 == 0 or step == self.total:
+            self.bar.set_postfix(loss=f"{self.loss:.4f}", psnr=f"{self.psnr:.2f}", n=gaussians, refresh=False)
+
+    def close(self) -> None:
+        self.bar.close()

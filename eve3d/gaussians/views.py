@@ -1,0 +1,105 @@
+"""A scene's views as training sees them: each camera at the training resolution with its
+photo as a tensor, split into training and held-out views.
+
+Shared by the training stages and by everything that scores a trained model against the
+photos the same way (the nvs protocol), so that both read, resize and split the images alike.
+"""
+from __future__ import annotations
+
+import functools
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from eve3d.core.photos import read_view
+from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.settings import RenderSettings
+from eve3d.gaussians.render.projection import CameraTensors
+
+
+@dataclass
+class View:
+    """One training image at the training resolution."""
+
+    index: int
+    camera: Camera
+    cam: CameraTensors
+    image: torch.Tensor
+    """(H, W, 3) float in [0, 1]."""
+
+    @functools.cached_property
+    def grey(self) -> torch.Tensor:
+        """(H, W, 1) the image's grey level (mean of the channels), for the NCC patches."""
+        return self.image.mean(-1, keepdim=True)
+
+
+def pick_device(setting: str) -> torch.device:
+    """The device of a ``device`` setting: ``auto`` = CUDA when present, else CPU."""
+    want_cuda = setting == "cuda" or (setting == "auto" and torch.cuda.is_available())
+    return torch.device("cuda" if want_cuda else "cpu")
+
+
+def load_views(scene: Scene, rendering: RenderSettings, device: torch.device,
+               tone: np.ndarray | None = None) -> list[View]:
+    """Every camera of ``scene`` at the training size (``rendering.sized``) with its photo
+    at that size (``read_view``: from the image pyramid when there is one), its grey
+    levels mapped through ``tone`` ((256,) uint8) when given."""
+    views = []
+    for i, cam in enumerate(tqdm(scene.cameras, desc="loading images", unit="img", leave=False)):
+        if cam.image_path is None:
+            raise Eve3dError(f"{scene.root}: view {cam.view_id} has no image")
+        small = rendering.sized(cam)
+        rgb = read_view(small)
+        if tone is not None:
+            rgb = tone[rgb]
+        image = torch.from_numpy(rgb).to(device=device, dtype=torch.float32) / 255.0
+        views.append(View(i, small, CameraTensors.from_camera(small, torch.float32, device), image))
+    return views
+
+
+def split_views(n: int, holdout: int) -> tuple[list[int], list[int]]:
+    """(training, held-out) view indices: every ``holdout``-th view is held out."""
+    test = [i for i in range(n) if holdout and i % holdout == 0]
+    return [i for i in range(n) if i not in test], test
+
+
+@dataclass
+class Views:
+    """Every view of a scene (indexed as ``scene.cameras``) and which of them train."""
+
+    items: list[View]
+    train_ids: list[int]
+    test_ids: list[int]
+
+    @classmethod
+    def load(cls, scene: Scene, rendering: RenderSettings, holdout: int, device: torch.device,
+             tone: np.ndarray | None = None) -> "Views":
+        """:func:`load_views`, split by :func:`split_views`; refuses a split that leaves
+        nothing to train on."""
+        views = load_views(scene, rendering, device, tone)
+        train_ids, test_ids = split_views(len(views), holdout)
+        if not train_ids:
+            raise Eve3dError(f"{scene.root}: no training views left after holding out every {holdout}th")
+        return cls(views, train_ids, test_ids)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, i: int) -> View:
+        return self.items[i]
+
+    def __iter__(self) -> Iterator[View]:
+        return iter(self.items)
+
+    @property
+    def cameras(self) -> list[Camera]:
+        """The cameras at the training resolution."""
+        return [v.camera for v in self.items]
+
+    @property
+    def images(self) -> list[torch.Tensor]:
+        """The photos at the training resolution."""
+        return [v.image for v in self.items]

@@ -1,4 +1,0 @@
-"""Readers that turn every supported dataset layout into the one ``Scene``."""
-from eve3d.io.loader import find_colmap_model, has_poses, load_scene
-
-__all__ = ["find_colmap_model", "has_poses", "load_scene"]
