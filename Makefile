@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 JOBS ?= 2
 
-.PHONY: demo test install clean
+.PHONY: demo test check install clean
 
 REPORT := results/report.html
 PSMNET := $(HOME)/.cache/eve3d/psmnet/pretrained_model_KITTI2015.tar
@@ -20,6 +20,9 @@ demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print t
 
 test: $(STAMP)  ## the test suite
 	$(BIN)/python -m pytest -q
+
+check: $(STAMP)  ## the tests not marked slow: the quick tier to run before a commit
+	$(BIN)/python -m pytest -q -m "not slow"
 
 install: $(STAMP)
 

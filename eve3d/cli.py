@@ -235,9 +235,9 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
 
 
 def _cmd_bench(a: argparse.Namespace) -> None:
-    from eve3d.tools import bench
+    from eve3d.tools.bench import rasterizer
 
-    sizes = bench.RASTERIZER_SIZES
+    sizes = rasterizer.RASTERIZER_SIZES
     if a.sizes:
         try:
             sizes = [tuple(int(v) for v in item.split("x")) for item in a.sizes.split(",")]
@@ -245,29 +245,29 @@ def _cmd_bench(a: argparse.Namespace) -> None:
             sizes = []
         if not sizes or any(len(s) != 3 for s in sizes):
             raise Eve3dError(f"--sizes {a.sizes!r}: expected GAUSSIANSxWIDTHxHEIGHT[,...], e.g. 5000x160x120")
-    rows = bench.bench_rasterizer(sizes, backend=a.backend, repeats=a.repeats)
-    print(bench.rasterizer_json(rows) if a.json else bench.format_rasterizer_table(rows))
+    rows = rasterizer.bench_rasterizer(sizes, backend=a.backend, repeats=a.repeats)
+    print(rasterizer.rasterizer_json(rows) if a.json else rasterizer.format_rasterizer_table(rows))
 
 
 def _cmd_bench_training(a: argparse.Namespace) -> None:
-    from eve3d.tools import bench
+    from eve3d.tools.bench import training as training_bench
 
     for name in ("steps", "warmup", "gaussians"):
         if getattr(a, name) < (0 if name == "warmup" else 1):
             raise Eve3dError(f"--{name} {getattr(a, name)}: expected a positive number")
-    report = bench.bench_training(a.stages or bench.TRAINING_STAGES, a.steps, a.warmup, a.gaussians, _config(a),
-                                  a.start)
-    print(json.dumps(report, indent=2) if a.json else bench.format_training_table(report))
+    report = training_bench.bench_training(a.stages or training_bench.TRAINING_STAGES, a.steps, a.warmup, a.gaussians,
+                                           _config(a), a.start)
+    print(json.dumps(report, indent=2) if a.json else training_bench.format_training_table(report))
 
 
 def _cmd_bench_stereo(a: argparse.Namespace) -> None:
-    from eve3d.tools import bench
+    from eve3d.tools.bench import stereo as stereo_bench
 
     priors, agreement = [], []
     for folder in map(Path, a.priors):
         oracle, label = folder.parent / "oracle", f"{folder.parent.parent.name}/{folder.name}"
         if oracle.is_dir():
-            priors.append(bench.prior_accuracy(folder, oracle, label))
+            priors.append(stereo_bench.prior_accuracy(folder, oracle, label))
         elif a.scene:
             from eve3d.core.io import load_scene
             from eve3d.evaluate.depth import prior_agreement
@@ -276,18 +276,18 @@ def _cmd_bench_stereo(a: argparse.Namespace) -> None:
         else:
             raise Eve3dError(f"{folder}: no oracle priors beside it ({oracle}) to score against; give --scene (the "
                              f"posed dataset) to measure how neighbouring views' priors agree instead")
-    moto = [bench.stereo_motorcycle(), bench.stereo_motorcycle(wls=True)]
+    moto = [stereo_bench.stereo_motorcycle(), stereo_bench.stereo_motorcycle(wls=True)]
     print(json.dumps({"motorcycle": moto, "priors": priors, "agreement": agreement}, indent=2) if a.json
-          else bench.format_stereo_tables(moto, priors, agreement))
+          else stereo_bench.format_stereo_tables(moto, priors, agreement))
 
 
 def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
-    from eve3d.tools import bench
+    from eve3d.tools.bench import evaluate as evaluation
 
     if a.meshes and not (a.scene and a.gt):
         raise Eve3dError("--meshes needs --scene (the cameras) and --gt (the GT mesh)")
-    rows = bench.bench_evaluate([("/".join(Path(m).parts[-3:]), str(m)) for m in a.meshes], a.scene, a.gt)
-    print(json.dumps(rows, indent=2) if a.json else bench.format_evaluate_table(rows))
+    rows = evaluation.bench_evaluate([("/".join(Path(m).parts[-3:]), str(m)) for m in a.meshes], a.scene, a.gt)
+    print(json.dumps(rows, indent=2) if a.json else evaluation.format_evaluate_table(rows))
 
 
 def _benchmark_workflow(a: argparse.Namespace) -> dict:
@@ -307,10 +307,10 @@ def _benchmark_workflow(a: argparse.Namespace) -> dict:
 
 
 def _cmd_bench_methods(a: argparse.Namespace) -> None:
-    from eve3d.tools import bench
+    from eve3d.tools.bench import methods as methods_bench
 
-    report = bench.methods_report(_benchmark_workflow(a))
-    print(json.dumps(report, indent=2) if a.json else bench.format_methods_report(report))
+    report = methods_bench.methods_report(_benchmark_workflow(a))
+    print(json.dumps(report, indent=2) if a.json else methods_bench.format_methods_report(report))
 
 
 def _cmd_bench_standin(a: argparse.Namespace) -> None:
@@ -332,19 +332,19 @@ def _cmd_bench_standin(a: argparse.Namespace) -> None:
 
 
 def _cmd_bench_real(a: argparse.Namespace) -> None:
-    from eve3d.tools import bench
+    from eve3d.tools.bench import methods as methods_bench
 
-    report = bench.real_report(_benchmark_workflow(a))
-    print(json.dumps(report, indent=2) if a.json else bench.format_real_report(report))
+    report = methods_bench.real_report(_benchmark_workflow(a))
+    print(json.dumps(report, indent=2) if a.json else methods_bench.format_real_report(report))
 
 
 def _cmd_bench_scale(a: argparse.Namespace) -> None:
     import tempfile
 
-    from eve3d.tools import bench
+    from eve3d.tools.bench import scale
 
     mode = "memory" if a.memory else "pipeline"
-    views, width, height = bench.SCALE_SIZE[mode]
+    views, width, height = scale.SCALE_SIZE[mode]
     flags = {"synthetic.views": a.views or views, "synthetic.width": a.width or width,
              "synthetic.height": a.height or height}
     if a.iterations is not None:
@@ -357,10 +357,10 @@ def _cmd_bench_scale(a: argparse.Namespace) -> None:
     config = job_config(a.config, a.set, flags)
     with contextlib.ExitStack() as stack:
         work = Path(a.work) if a.work else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="eve3d-scale-")))
-        report = bench.bench_scale(work, config, memory=a.memory, kind=a.kind,
-                                   methods=a.methods or bench.SCALE_METHODS, gt_points=a.gt_points or bench.GT_POINTS,
-                                   protocols=a.protocols or bench.MEMORY_PROTOCOLS)
-    print(json.dumps(report, indent=2) if a.json else bench.format_scale_report(report))
+        report = scale.bench_scale(work, config, memory=a.memory, kind=a.kind,
+                                   methods=a.methods or scale.SCALE_METHODS, gt_points=a.gt_points or scale.GT_POINTS,
+                                   protocols=a.protocols or scale.MEMORY_PROTOCOLS)
+    print(json.dumps(report, indent=2) if a.json else scale.format_scale_report(report))
 
 
 def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:

@@ -6,7 +6,7 @@ import torch
 
 from eve3d.config import job_config
 from eve3d.joint import setup_joint
-from eve3d.tools.bench import STEP_PARTS, bench_training, format_training_table, profile_steps
+from eve3d.tools.bench.training import STEP_PARTS, bench_training, format_training_table, profile_steps
 from tests.helpers import joint_settings
 
 
@@ -52,7 +52,7 @@ def test_scale_bench_memory_mode_at_a_tiny_size(tmp_path):
     """``eve3d bench scale --memory`` on 6 views of 96×54 and 5000 GT samples (synthetic
     protocol only): each step in a process of its own, with its time and peak memory, and
     the table that prints them (no thresholds: memory and time are read, never tested)."""
-    from eve3d.tools.bench import bench_scale, format_scale_report
+    from eve3d.tools.bench.scale import bench_scale, format_scale_report
 
     config = job_config(None, ["synthetic.views=6", "synthetic.width=96", "synthetic.height=54"])
     report = bench_scale(tmp_path / "work", config, memory=True, gt_points=5000, protocols=["synthetic"])

@@ -13,7 +13,7 @@ from eve3d.pretrain import pretrain
 from eve3d.priors.oracle import oracle_priors
 from eve3d.stereo import render_right_views, sgbm_priors
 from eve3d.synth import generate
-from eve3d.tools.bench import prior_accuracy
+from eve3d.tools.bench.stereo import prior_accuracy
 from tests.helpers import TINY_START
 
 # The cpu preset with both schedules cut from 1500 to 300 iterations: simplification and the
@@ -30,7 +30,7 @@ SMALL = {
 def test_eve3d_final_priors_are_closer_to_the_exact_depth_than_the_sgbm_priors(tmp_path):
     """The generated object (``eve3d synth object``) at 12 views of 160×120, pretrained,
     its virtual right views rendered, ``sgbm`` priors D* from them, and ``eve3d`` trained on
-    D* (the cpu preset under ``SMALL``). Scored with :func:`eve3d.tools.bench.prior_accuracy`
+    D* (the cpu preset under ``SMALL``). Scored with :func:`eve3d.tools.bench.stereo.prior_accuracy`
     against the exact depth (the oracle priors) on the same pixels: every pixel where the
     exact depth is known and D* is confident (its M^c, the pixels L_prior supervises and
     ``stereo-tsdf`` fuses), D̂ there whatever its own updated confidence says.

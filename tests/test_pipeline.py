@@ -30,6 +30,7 @@ def room_dataset(tmp_path_factory) -> Path:
     return generate("room", tmp_path_factory.mktemp("data") / "room")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["object", "room"])
 def test_oracle_tsdf_mesh_scores_high(which, object_dataset, room_dataset, tmp_path):
     """The exact depth of the built-in scenes, fused at the cpu preset's coarse voxel,
@@ -149,6 +150,7 @@ def _digests(root: Path) -> dict[str, str]:
             for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_killed_training_reruns_to_the_same_result(tmp_path):
     """A training job killed with SIGKILL in the middle of the workflow, then the workflow
     rerun: the same Gaussians, mesh scores and depth as an uninterrupted run (one thread, the

@@ -109,7 +109,7 @@ def test_gradients_match_finite_differences(backend):
 
 def test_backends_agree_on_a_surface_scene():
     """The C++ tiles and the PyTorch pairs: same pairs, same images, same gradients."""
-    from eve3d.tools.bench import surface_gaussians
+    from eve3d.tools.bench.rasterizer import surface_gaussians
 
     params, cam = surface_gaussians(3000, 160, 120)
     results = {}

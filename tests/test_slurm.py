@@ -139,6 +139,7 @@ def profile_requests(rule: str, profile: dict) -> dict[str, str]:
             "--cpus-per-task": str(profile["set-threads"].get(rule, 1))}
 
 
+@pytest.mark.slow
 def test_tiny_scene_runs_through_the_slurm_profile(slurm_cluster, tmp_path):
     """Every stage kind, on short schedules, through sbatch and srun: the results are
     complete, each job asked for the profile's time, memory and cores in the site's

@@ -7,7 +7,7 @@ import pytest
 from eve3d.core.maps import load_maps, preview_image
 from eve3d.core.scene import Camera, Eve3dError, Scene
 from eve3d.core.settings import BaselineSettings, MatchCheck, SgbmSettings
-from eve3d.tools.bench import stereo_motorcycle
+from eve3d.tools.bench.stereo import stereo_motorcycle
 from tests.helpers import shifted_pair, stereo_scene
 from eve3d.core.photos import equalizing_curve
 from eve3d.priors.matching import local_std

@@ -238,6 +238,7 @@ def test_alignment_recovers_the_frame(tnt_layout, tmp_path):
     assert not list(tmp_path.glob(".*"))   # no temporary files left
 
 
+@pytest.mark.slow
 def test_official_mode_scores_the_vertices_of_a_coarse_mesh(tnt_layout, tmp_path):
     """By default a mesh is scored as the toolbox scores it: its PLY read as a point cloud,
     i.e. its vertices. On a mesh whose vertices lie about τ apart that misses GT points

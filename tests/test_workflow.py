@@ -119,6 +119,7 @@ def test_bad_training_key_is_named_before_any_job(tmp_path):
     assert "scale_wieght" in r.stdout + r.stderr and "scale_weight" in r.stdout + r.stderr
 
 
+@pytest.mark.slow
 def test_tiny_training_run(tmp_path):
     """pretrain, stereo priors, stereo-tsdf, 3dgs, pgsr and eve3d through the workflow on a
     tiny scene with very short schedules."""
@@ -206,6 +207,7 @@ def test_tiny_training_run(tmp_path):
     assert math.isfinite(nvs["psnr"]) and float(summary["tiny-nvs", "3dgs"]["psnr"]) == pytest.approx(nvs["psnr"])
 
 
+@pytest.mark.slow
 def test_tiny_run_with_a_failed_scene_then_rerun_one_stage(tmp_path):
     """The oracle on the tiny scene beside a scene whose SfM fails (photos of noise): with
     --keep-going the tiny scene finishes, and the summary and the report list the failed one
