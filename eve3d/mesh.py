@@ -247,6 +247,31 @@ def _welded(parts: list):
     return mesh
 
 
+def _integrate(vbg, cam: Camera, depth: np.ndarray, s: MeshSettings, depth_max: float, near=None) -> bool:
+    """Fuse one view's depth and colour into ``vbg``, only into the blocks ``near`` keeps
+    (a slab and its margin) when given; False when the view touches none."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
+        return False
+    frame = _frame(cam, depth)
+    coords = _block_coords(vbg, frame, s, depth_max)
+    if coords is not None and near is not None:
+        coords = coords[o3c.Tensor(near(coords.numpy()))]
+    if coords is None or not len(coords):
+        return False
+    intrinsic, extrinsic, depth_img = frame
+    if cam.image_path is not None and cam.image_path.exists():
+        rgb = read_view(cam).astype(np.float32) / 255.0
+    else:
+        rgb = np.full((cam.height, cam.width, 3), 0.7, np.float32)
+    color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
+    vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
+                  trunc_voxel_multiplier=s.trunc_factor)
+    return True
+
+
 def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
     """TSDF-fuse the depth maps in ``depth_dir`` (``{view}.npz``) → open3d legacy mesh. The
     maps are read one at a time (one pass for the voxel of an open scene, one to count the
@@ -254,7 +279,6 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
     TILE_BLOCKS blocks is fused and meshed a slab at a time (:func:`slabs`; each slab reads
     the views that reach it): the same mesh, with a grid of at most TILE_BLOCKS blocks."""
     import open3d as o3d
-    import open3d.core as o3c
 
     s = settings or MeshSettings()
     plan = plan_grid(scene, depth_dir, s)
@@ -269,23 +293,8 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         vbg = _grid(voxel, held + min(plan.most, held))  # a view adds at most the slab's blocks
         desc = f"TSDF (voxel {voxel:.4g}, {held} blocks" + (f", slab {k + 1}/{len(ranges)})" if len(ranges) > 1 else ")")
         for cam, depth in fused_depths(replace(scene, cameras=seen), depth_dir, s, desc, leave=len(ranges) == 1):
-            if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
-                continue
-            frame = _frame(cam, depth)
-            coords = _block_coords(vbg, frame, s, depth_max)
-            if coords is not None and len(ranges) > 1:
-                coords = coords[o3c.Tensor(near(coords.numpy()))]
-            if coords is None or not len(coords):
-                continue
-            intrinsic, extrinsic, depth_img = frame
-            if cam.image_path is not None and cam.image_path.exists():
-                rgb = read_view(cam).astype(np.float32) / 255.0
-            else:
-                rgb = np.full((cam.height, cam.width, 3), 0.7, np.float32)
-            color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
-            vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
-                          trunc_voxel_multiplier=s.trunc_factor)
-            fused_views.add(cam.view_id)
+            if _integrate(vbg, cam, depth, s, depth_max, near if len(ranges) > 1 else None):
+                fused_views.add(cam.view_id)
         if not vbg.hashmap().size():  # open3d cannot extract from a grid that no view reached
             continue
         extracted = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold)
