@@ -10,9 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from eve3d.config import SNAKEFILE  # this checkout's workflow, which the tests run
-
-REPO = Path(__file__).resolve().parent.parent
+from eve3d.config import REPO, SNAKEFILE  # this checkout and its workflow, which the tests run
 
 
 # -- running the CLI and the workflow ----------------------------------------------------------

@@ -1,3 +1,3 @@
-"""The shared core: the scene and camera type, every setting, the method and protocol-free
-registries, the results layout, file I/O and the dataset readers. Stages and the other
+"""The shared core: the scene and camera type, every setting, the method
+registry, the results layout, file I/O and the dataset readers. Stages and the other
 libraries build on it; it imports no stage."""
