@@ -2,17 +2,13 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
-import csv
 import functools
 import json
 import sys
-from pathlib import Path
 from collections.abc import Callable
 from typing import Any
 
 from eve3d.core.scene import Eve3dError
-from eve3d.report import SUMMARY_COLUMNS
 
 
 def _config(a: argparse.Namespace) -> dict:
@@ -48,399 +44,175 @@ def _naming_flags(a: argparse.Namespace, build: Callable[[], Any]) -> Any:
 
 def _cmd_synth(a: argparse.Namespace) -> None:
     from eve3d.core.settings import SyntheticSettings
-    from eve3d.synth import generate
+    from eve3d.synth import run
 
-    s = _settings(a, SyntheticSettings, "synthetic")
-    generate(a.kind, Path(a.out), views=s.views, width=s.width, height=s.height, seed=s.seed,
-             images_only=a.images_only, arc=s.arc, surface_samples=s.surface_samples)
-    print(f"wrote {a.out}")
+    run(_settings(a, SyntheticSettings, "synthetic"), kind=a.kind, out=a.out, images_only=a.images_only)
 
 
 def _cmd_sfm(a: argparse.Namespace) -> None:
     from eve3d.core.settings import SfmSettings
-    from eve3d.sfm import run_sfm
+    from eve3d.sfm import run
 
-    run_sfm(Path(a.dataset), Path(a.out), _settings(a, SfmSettings, "sfm"))
-    print(f"wrote {a.out}")
+    run(_settings(a, SfmSettings, "sfm"), dataset=a.dataset, out=a.out)
 
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
-    from eve3d.core.io import load_scene
-    from eve3d.core.settings import BaselineSettings, PretrainSettings, RenderSettings, StereoSettings, pick
-    from eve3d.stereo import render_right_views
+    from eve3d.core.settings import PretrainSettings, RenderSettings, StereoSettings, pick
+    from eve3d.stereo import run_render
 
     config = _config(a)
-    stereo = _settings(a, StereoSettings, "stereo", config)
     rendering = pick(RenderSettings, _settings(a, PretrainSettings, "pretrain", config))  # as the model was trained
-    info = render_right_views(load_scene(a.scene), Path(a.model), Path(a.out), pick(BaselineSettings, stereo), rendering)
-    b = [v["baseline"] for v in info["views"].values()]
-    print(f"wrote {len(b)} right views to {a.out}/right (baseline {min(b):.4g} to {max(b):.4g})")
+    run_render(_settings(a, StereoSettings, "stereo", config), rendering, scene=a.scene, model=a.model, out=a.out)
 
 
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
-    from eve3d.core.io import load_scene
-    from eve3d.core.settings import MatchCheck, SgbmSettings, StereoSettings, pick
+    from eve3d.core.settings import StereoSettings
+    from eve3d.stereo import run_depth
 
-    scene = load_scene(a.scene)
-    s = _settings(a, StereoSettings, "stereo")
-    check = pick(MatchCheck, s)
-    if s.backend == "oracle":
-        from eve3d.priors.oracle import oracle_priors
-
-        oracle_priors(scene, Path(a.out), Path(a.gt_mesh) if a.gt_mesh else None, preview=not a.no_preview)
-    elif not a.stereo:
-        raise Eve3dError(f"--backend {s.backend} needs --stereo (the output folder of `eve3d stereo-render`)")
-    elif s.backend == "sgbm":
-        from eve3d.stereo import sgbm_priors
-
-        sgbm_priors(scene, Path(a.stereo), Path(a.out), pick(SgbmSettings, s), preview=not a.no_preview, check=check)
-    elif s.backend == "mccnn":
-        from eve3d.priors.mccnn import MccnnStereo
-        from eve3d.stereo import stereo_priors
-
-        stereo_priors(scene, Path(a.stereo), Path(a.out), MccnnStereo(s.mccnn, s.min_texture, s.block_size), "MC-CNN",
-                      preview=not a.no_preview, check=check)
-    else:
-        from eve3d.priors.onnx import OnnxStereo
-        from eve3d.stereo import stereo_priors
-
-        if not s.onnx.model:
-            raise Eve3dError("--backend onnx needs the model spec: stereo.onnx in --config, or --set stereo.onnx.model=FILE")
-        stereo_priors(scene, Path(a.stereo), Path(a.out), OnnxStereo(s.onnx), "ONNX stereo", preview=not a.no_preview,
-                      check=check)
-    print(f"wrote {len(scene.cameras)} depth maps to {a.out}")
+    run_depth(_settings(a, StereoSettings, "stereo"), scene=a.scene, out=a.out, stereo=a.stereo, gt_mesh=a.gt_mesh,
+              preview=not a.no_preview)
 
 
 def _cmd_export_stereo(a: argparse.Namespace) -> None:
-    import yaml
+    from eve3d.stereo import run_export
 
-    from eve3d.priors.psmnet import SPEC_FILE, export_psmnet
-
-    size = None
-    if a.size:
-        try:
-            size = tuple(int(n) for n in a.size.lower().split("x"))
-        except ValueError:
-            size = ()
-        if len(size) != 2:
-            raise Eve3dError(f"--size {a.size!r}: expected HEIGHTxWIDTH, e.g. 256x320")
-    config = export_psmnet(a.weights, a.out, size, a.max_disparity)
-    model = Path(config["stereo"]["onnx"]["model"])
-    print(f"wrote {model} and {model.parent / SPEC_FILE}; use it with --config {model.parent / SPEC_FILE}, "
-          "or paste into your config:")
-    print(yaml.safe_dump(config, sort_keys=False, default_flow_style=None), end="")
+    run_export(a.size, a.max_disparity, weights=a.weights, out=a.out)
 
 
 def _cmd_pretrain(a: argparse.Namespace) -> None:
-    from eve3d.core.io import load_scene
     from eve3d.core.settings import PretrainSettings
-    from eve3d.pretrain import pretrain
+    from eve3d.pretrain import run
 
-    metrics = pretrain(load_scene(a.scene), Path(a.out), _settings(a, PretrainSettings, "pretrain"))
-    held = metrics["held_out"]
-    if held:
-        print(f"held-out views ({held['views']}): PSNR {held['psnr']:.2f} dB, SSIM {held['ssim']:.4f}")
-    print(f"wrote {a.out}/point_cloud.ply ({metrics['gaussians']} Gaussians)")
+    run(_settings(a, PretrainSettings, "pretrain"), scene=a.scene, out=a.out)
 
 
 def _cmd_joint(a: argparse.Namespace) -> None:
     from eve3d.config import method_settings
-    from eve3d.core.io import load_scene
-    from eve3d.joint import train_joint
+    from eve3d.joint import run
 
     config = _config(a)
-    settings = _naming_flags(a, lambda: method_settings(a.method, config, "--method"))
-    metrics = train_joint(load_scene(a.scene), Path(a.out), settings, Path(a.priors) if a.priors else None)
-    print(f"training views: PSNR {metrics['train']['psnr']:.2f} dB; wrote {a.out}/point_cloud.ply "
-          f"({metrics['gaussians']} Gaussians) and {a.out}/depth/")
+    run(_naming_flags(a, lambda: method_settings(a.method, config, "--method")), scene=a.scene, out=a.out,
+        priors=a.priors)
 
 
 def _cmd_mesh(a: argparse.Namespace) -> None:
-    from eve3d.core.io import load_scene
-    from eve3d.core.layout import MESH_VIEWS_DIR
     from eve3d.core.settings import MeshSettings
-    from eve3d.mesh import check_mesh_path, extent_report, fuse, write_mesh, write_mesh_views
+    from eve3d.mesh import run
 
-    check_mesh_path(Path(a.out))
-    settings = _settings(a, MeshSettings, "mesh")
-    scene = load_scene(a.scene, check_images=False)
-    if a.kind:
-        scene.kind = a.kind
-    mesh = fuse(scene, Path(a.depth), settings)
-    write_mesh(mesh, Path(a.out))
-    report = extent_report(mesh, scene)
-    print(f"wrote {a.out}: {len(mesh.vertices)} vertices, {report['triangles']} triangles, extent {report['extent']}"
-          + (f", {report['extent_ratio']:.2f}× the sparse points' 5–95 % box {report['sparse_extent']}"
-             if report["extent_ratio"] is not None else ""))
-    views = write_mesh_views(mesh, scene, Path(a.out).with_name(MESH_VIEWS_DIR))
-    print(f"wrote {len(views)} shaded views to {views[0].parent}")
+    run(_settings(a, MeshSettings, "mesh"), scene=a.scene, depth=a.depth, out=a.out, kind=a.kind)
 
 
 def _cmd_evaluate(a: argparse.Namespace) -> None:
-    from eve3d.core.fileio import atomic_path
-    from eve3d.core.io import load_scene
     from eve3d.core.settings import EvalSettings, MeshSettings
-    from eve3d.evaluate import PROTOCOLS, EvalInputs, protocol_for
+    from eve3d.evaluate import check, run
 
     config = _config(a)
     settings = _settings(a, EvalSettings, "evaluate", config)
-    min_confidence = _settings(a, MeshSettings, "mesh", config).min_confidence  # the pixels the mesh fused
-    scene = load_scene(a.scene, check_images=False)
-    # a ground-truth key counts as given when the flag of its input is (--gt for gt_mesh)
-    flags = {key: field for p in PROTOCOLS.values() for field, key in p.config_inputs.items()}
-    protocol = protocol_for(a.protocol, scene.extras.get("format", "colmap"), "--protocol",
-                            lambda key: getattr(a, flags[key]) is not None)
-    reconstruction = a.model if protocol.scores == "model" else a.mesh
-    optional = lambda v: Path(v) if v else None  # noqa: E731
+    paths = dict(scene=a.scene, out=a.out, protocol=a.protocol,
+                 ground_truth={"gt": a.gt, "obs_mask": a.obs_mask, "plane": a.plane})
     if a.check:
-        inputs = EvalInputs(scene, None, Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
-                            plane=optional(a.plane), settings=settings)
-        checked = {"protocol": protocol.name, "check": settings.ground_truth_check}
-        if settings.ground_truth_check != "off":
-            try:
-                checked.update(protocol.check_ground_truth(inputs))
-                print(f"the ground truth of {a.scene} lines up with its cameras ({protocol.name} protocol): "
-                      + ", ".join(f"{k} {v:.3g}" for k, v in checked.items() if isinstance(v, float)))
-            except Eve3dError as e:
-                if settings.ground_truth_check == "error":
-                    raise Eve3dError(f"{e} (evaluate.ground_truth_check: warn or off goes on regardless)") from None
-                print(f"warning: {e}", file=sys.stderr)
-                checked["warning"] = str(e)
-        with atomic_path(Path(a.out)) as tmp:
-            tmp.write_text(json.dumps(checked, indent=2))
+        check(settings, **paths)
         return
-    if reconstruction is None:
-        flag = "--model (a trained point_cloud.ply)" if protocol.scores == "model" else "--mesh"
-        raise Eve3dError(f"the {protocol.name} protocol scores a {protocol.scores}: give {flag}")
-    inputs = EvalInputs(scene, Path(reconstruction), Path(a.out), gt=optional(a.gt), obs_mask=optional(a.obs_mask),
-                        plane=optional(a.plane), settings=settings)
-    if bool(a.depth) != bool(a.exact_depth):
-        raise Eve3dError("--depth and --exact-depth go together: the maps the mesh fused, and the exact depth of "
-                         "the same views")
-    metrics = protocol.run(inputs)
-    if a.depth:
-        from eve3d.evaluate.depth import depth_accuracy
-
-        acc = depth_accuracy(Path(a.depth), Path(a.exact_depth), min_confidence=min_confidence)
-        metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
-                        "depth_density": acc["density"], "depth_on_empty": acc["on_empty"], "depth_maps": str(a.depth)})
-    if "tau" in metrics:
-        print(f"tau = {metrics['tau']:.5g} ({metrics['tau_rule']})")
-    metrics.update({"scene": a.scene_name, "method": a.method} if a.scene_name else {})
-    from eve3d.core.layout import EVALUATION, RECORD
-
-    with atomic_path(Path(a.out)) as tmp:
-        tmp.write_text(json.dumps({RECORD: EVALUATION, **metrics}, indent=2))
-    print(format_table([metrics]))
-
-
-def _cmd_bench(a: argparse.Namespace) -> None:
-    from eve3d.tools.bench import rasterizer
-
-    sizes = rasterizer.RASTERIZER_SIZES
-    if a.sizes:
-        try:
-            sizes = [tuple(int(v) for v in item.split("x")) for item in a.sizes.split(",")]
-        except ValueError:
-            sizes = []
-        if not sizes or any(len(s) != 3 for s in sizes):
-            raise Eve3dError(f"--sizes {a.sizes!r}: expected GAUSSIANSxWIDTHxHEIGHT[,...], e.g. 5000x160x120")
-    rows = rasterizer.bench_rasterizer(sizes, backend=a.backend, repeats=a.repeats)
-    print(rasterizer.rasterizer_json(rows) if a.json else rasterizer.format_rasterizer_table(rows))
-
-
-def _cmd_bench_training(a: argparse.Namespace) -> None:
-    from eve3d.tools.bench import training as training_bench
-
-    for name in ("steps", "warmup", "gaussians"):
-        if getattr(a, name) < (0 if name == "warmup" else 1):
-            raise Eve3dError(f"--{name} {getattr(a, name)}: expected a positive number")
-    report = training_bench.bench_training(a.stages or training_bench.TRAINING_STAGES, a.steps, a.warmup, a.gaussians,
-                                           _config(a), a.start)
-    print(json.dumps(report, indent=2) if a.json else training_bench.format_training_table(report))
-
-
-def _cmd_bench_stereo(a: argparse.Namespace) -> None:
-    from eve3d.tools.bench import stereo as stereo_bench
-
-    priors, agreement = [], []
-    for folder in map(Path, a.priors):
-        oracle, label = folder.parent / "oracle", f"{folder.parent.parent.name}/{folder.name}"
-        if oracle.is_dir():
-            priors.append(stereo_bench.prior_accuracy(folder, oracle, label))
-        elif a.scene:
-            from eve3d.core.io import load_scene
-            from eve3d.evaluate.depth import prior_agreement
-
-            agreement.append({**prior_agreement(load_scene(a.scene, check_images=False), folder), "data": label})
-        else:
-            raise Eve3dError(f"{folder}: no oracle priors beside it ({oracle}) to score against; give --scene (the "
-                             f"posed dataset) to measure how neighbouring views' priors agree instead")
-    moto = [stereo_bench.stereo_motorcycle(), stereo_bench.stereo_motorcycle(wls=True)]
-    print(json.dumps({"motorcycle": moto, "priors": priors, "agreement": agreement}, indent=2) if a.json
-          else stereo_bench.format_stereo_tables(moto, priors, agreement))
-
-
-def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
-    from eve3d.tools.bench import evaluate as evaluation
-
-    if a.meshes and not (a.scene and a.gt):
-        raise Eve3dError("--meshes needs --scene (the cameras) and --gt (the GT mesh)")
-    rows = evaluation.bench_evaluate([("/".join(Path(m).parts[-3:]), str(m)) for m in a.meshes], a.scene, a.gt)
-    print(json.dumps(rows, indent=2) if a.json else evaluation.format_evaluate_table(rows))
-
-
-def _benchmark_workflow(a: argparse.Namespace) -> dict:
-    """Run the workflow of a benchmark's config (unless --report-only); its resolved config."""
-    import subprocess
-
-    from eve3d.config import SNAKEFILE, load_config
-    from eve3d.core.layout import Layout
-
-    config = load_config(a.config)
-    if not a.report_only:
-        cmd = [sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), "--configfile", a.config,
-               "--replace-workflow-config", f"-c{a.cores}", "--quiet", "rules", "progress"]
-        if subprocess.run(cmd).returncode != 0:
-            raise Eve3dError(f"the workflow of {a.config} failed (its logs: {Layout(config['results']).logs()}/)")
-    return config
-
-
-def _cmd_bench_methods(a: argparse.Namespace) -> None:
-    from eve3d.tools.bench import methods as methods_bench
-
-    report = methods_bench.methods_report(_benchmark_workflow(a))
-    print(json.dumps(report, indent=2) if a.json else methods_bench.format_methods_report(report))
-
-
-def _cmd_bench_standin(a: argparse.Namespace) -> None:
-    import tempfile
-
-    from eve3d.core.io import load_scene
-    from eve3d.synth import generate
-    from eve3d.tools.standin import STANDIN_SCENE, write_standin
-
-    root, name = Path(a.root), STANDIN_SCENE[a.benchmark]
-    if (root / name).exists():
-        raise Eve3dError(f"{root / name}: already there; give an empty folder")
-    with tempfile.TemporaryDirectory() as tmp:
-        scene = load_scene(generate("object", Path(tmp) / "object", views=a.views, width=a.width, height=a.height))
-        folder = write_standin(a.benchmark, scene, root)
-    print(f"wrote a stand-in {name} ({a.views} views, {a.width}×{a.height}) to {folder}; run it:\n"
-          f"  snakemake -c2 --configfile config/benchmarks/{a.benchmark}.yaml --replace-workflow-config "
-          f"--config root={root} 'only=[{name}]'")
-
-
-def _cmd_bench_real(a: argparse.Namespace) -> None:
-    from eve3d.tools.bench import methods as methods_bench
-
-    report = methods_bench.real_report(_benchmark_workflow(a))
-    print(json.dumps(report, indent=2) if a.json else methods_bench.format_real_report(report))
-
-
-def _cmd_bench_scale(a: argparse.Namespace) -> None:
-    import tempfile
-
-    from eve3d.tools.bench import scale
-
-    mode = "memory" if a.memory else "pipeline"
-    views, width, height = scale.SCALE_SIZE[mode]
-    flags = {"synthetic.views": a.views or views, "synthetic.width": a.width or width,
-             "synthetic.height": a.height or height}
-    if a.iterations is not None:
-        flags.update({"pretrain.iterations": a.iterations, "joint.iterations": a.iterations})
-    for name in ("views", "width", "height", "iterations", "gt_points"):
-        if getattr(a, name) is not None and getattr(a, name) < 1:
-            raise Eve3dError(f"--{name.replace('_', '-')} {getattr(a, name)}: expected a positive number")
-    from eve3d.config import job_config
-
-    config = job_config(a.config, a.set, flags)
-    with contextlib.ExitStack() as stack:
-        work = Path(a.work) if a.work else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="eve3d-scale-")))
-        report = scale.bench_scale(work, config, memory=a.memory, kind=a.kind,
-                                   methods=a.methods or scale.SCALE_METHODS, gt_points=a.gt_points or scale.GT_POINTS,
-                                   protocols=a.protocols or scale.MEMORY_PROTOCOLS)
-    print(json.dumps(report, indent=2) if a.json else scale.format_scale_report(report))
-
-
-def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:
-    """A plain-text table of metric rows (missing values as '-')."""
-    def cell(v):
-        return f"{v:.4g}" if isinstance(v, float) else ("-" if v is None else str(v))
-
-    cols = [c for c in columns if any(c in r for r in rows)]
-    table = [cols] + [[cell(r.get(c)) for c in cols] for r in rows]
-    widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
-    lines = ["  ".join(v.ljust(w) for v, w in zip(row, widths)) for row in table]
-    return "\n".join([lines[0], "  ".join("-" * w for w in widths)] + lines[1:])
-
-
-VIEW_COLUMNS = ("scene", "stage", "views", "psnr", "ssim")
+    min_confidence = _settings(a, MeshSettings, "mesh", config).min_confidence  # the pixels the mesh fused
+    run(settings, min_confidence, **paths, mesh=a.mesh, model=a.model, depth=a.depth, exact_depth=a.exact_depth,
+        row={"scene": a.scene_name, "method": a.method} if a.scene_name else None)
 
 
 def _cmd_summary(a: argparse.Namespace) -> None:
-    from eve3d.core.layout import EVALUATION, METRICS_FILE, RECORD, TRAIN_METRICS_FILE, TRAINING, locate
+    from eve3d.report import run_summary
 
-    rows, view_rows = [], []
-    for path in map(Path, a.metrics):
-        try:
-            m = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            raise Eve3dError(f"{path}: cannot read metrics ({e})") from None
-        if not isinstance(m, dict) or m.get(RECORD) not in (EVALUATION, TRAINING):
-            found = f"{RECORD!r} is {m[RECORD]!r}" if isinstance(m, dict) and RECORD in m else f"no {RECORD!r} field"
-            raise Eve3dError(f"{path}: {found}; a metrics record says what it holds: {RECORD!r}: {EVALUATION!r} "
-                             f"({METRICS_FILE}, written by eve3d evaluate) or {TRAINING!r} ({TRAIN_METRICS_FILE}, "
-                             f"written by pretrain and joint); rerun the stage that wrote it (snakemake --forcerun evaluate)")
-        record = m[RECORD]
-        scene, stage = locate(path)  # names the row when the record does not
-        if record == TRAINING:  # a training stage's novel-view metrics
-            view_rows.append({"scene": scene, "stage": stage, **m["held_out"]})
-            continue
-        m.setdefault("scene", scene)
-        m.setdefault("method", stage)
-        rows.append(m)
-    if a.failed:  # rows of a workflow that ended with failed jobs (eve3d.core.failures)
-        try:
-            rows += json.loads(Path(a.failed).read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            raise Eve3dError(f"{a.failed}: cannot read the failed rows ({e})") from None
-    rows.sort(key=lambda r: (r["scene"], r["method"]))
-    out = Path(a.out)
-    _write_csv(out, SUMMARY_COLUMNS, rows)
-    print(format_table(rows, SUMMARY_COLUMNS))
-    if view_rows:
-        view_rows.sort(key=lambda r: (r["scene"], r["stage"]))
-        _write_csv(out.with_name(f"{out.stem}_views.csv"), VIEW_COLUMNS, view_rows)
-        print("\nheld-out views of the training stages (at the training resolution)")
-        print(format_table(view_rows, VIEW_COLUMNS))
+    run_summary(a.metrics, out=a.out, failed=a.failed)
 
 
 def _cmd_report(a: argparse.Namespace) -> None:
-    from eve3d.core.layout import Layout
     from eve3d.core.settings import StereoSettings
-    from eve3d.report import write_report
+    from eve3d.report import run
 
-    datasets = {}
-    for item in a.dataset:
-        scene, sep, folder = item.partition("=")
-        if not sep:
-            raise Eve3dError(f"--dataset {item!r}: expected SCENE=FOLDER")
-        datasets[scene] = Path(folder)
     config = _config(a)
-    backend = _settings(a, StereoSettings, "stereo", config).backend
-    written = write_report(Layout(a.results), Path(a.out), datasets, backend, config.get("benchmark"))
-    print(f"wrote {len(written)} report pages to {a.out}")
+    run(_settings(a, StereoSettings, "stereo", config), config.get("benchmark"), results=a.results, out=a.out,
+        datasets=dict(a.dataset))
 
 
-def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
-    from eve3d.core.fileio import atomic_path
+def _cmd_bench_rasterizer(a: argparse.Namespace) -> None:
+    from eve3d.tools.bench import rasterizer
 
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
-            writer.writeheader()
-            writer.writerows(rows)
+    rasterizer.run(a.sizes or rasterizer.RASTERIZER_SIZES, a.backend, a.repeats, a.json)
+
+
+def _cmd_bench_training(a: argparse.Namespace) -> None:
+    from eve3d.tools.bench import training
+
+    training.run(_config(a), a.stages or training.TRAINING_STAGES, a.steps, a.warmup, a.gaussians, a.start, a.json)
+
+
+def _cmd_bench_stereo(a: argparse.Namespace) -> None:
+    from eve3d.tools.bench import stereo
+
+    stereo.run(a.priors, a.scene, a.json)
+
+
+def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
+    from eve3d.tools.bench import evaluate
+
+    evaluate.run(a.meshes, a.scene, a.gt, a.json)
+
+
+def _cmd_bench_methods(a: argparse.Namespace) -> None:
+    from eve3d.tools.bench import methods
+
+    (methods.run_real if a.benchmark == "real" else methods.run)(a.config, a.cores, a.report_only, a.json)
+
+
+def _cmd_bench_standin(a: argparse.Namespace) -> None:
+    from eve3d.tools import standin
+
+    standin.run(a.benchmark, a.root, a.views, a.width, a.height)
+
+
+def _cmd_bench_scale(a: argparse.Namespace) -> None:
+    from eve3d.tools.bench import scale
+
+    scale.run(a.config, a.set, memory=a.memory, kind=a.kind, size=(a.views, a.width, a.height),
+              iterations=a.iterations, methods=a.methods, gt_points=a.gt_points, protocols=a.protocols,
+              work=a.work, as_json=a.json)
+
+
+# -- argument types: a wrong value is argparse's error, naming the flag ----------------------
+
+def _positive(text: str) -> int:
+    value = int(text) if text.lstrip("-").isdigit() else 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive number")
+    return value
+
+
+def _at_least_zero(text: str) -> int:
+    if not text.isdigit():
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number ≥ 0")
+    return int(text)
+
+
+def _numbers_by_x(text: str, count: int, example: str) -> tuple[int, ...]:
+    """``text`` such as ``256x320``: ``count`` positive integers."""
+    parts = text.lower().split("x")
+    if len(parts) != count or not all(p.isdigit() and int(p) > 0 for p in parts):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected {example}")
+    return tuple(map(int, parts))
+
+
+def _height_width(text: str) -> tuple[int, int]:
+    return _numbers_by_x(text, 2, "HEIGHTxWIDTH, e.g. 256x320")
+
+
+def _rasterizer_sizes(text: str) -> list[tuple[int, int, int]]:
+    return [_numbers_by_x(item, 3, "GAUSSIANSxWIDTHxHEIGHT[,...], e.g. 5000x160x120") for item in text.split(",")]
+
+
+def _scene_folder(text: str) -> tuple[str, str]:
+    scene, sep, folder = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected SCENE=FOLDER")
+    return scene, folder
 
 
 _ARG_TYPES = {"int": int, "float": float, "str": str, "any": str}
@@ -526,7 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("report", help="the report's pages from a results folder (snakemake --report gathers them)")
     s.add_argument("--results", required=True, help="the results folder (its summary.csv and benchmark files)")
     s.add_argument("--out", required=True, help="folder for summary.html, runtimes.html, charts/, scenes/")
-    s.add_argument("--dataset", action="append", default=[], metavar="SCENE=FOLDER",
+    s.add_argument("--dataset", action="append", default=[], type=_scene_folder, metavar="SCENE=FOLDER",
                    help="a scene's posed dataset (its first photo heads the scene's sheets); repeat per scene")
     _config_arguments(s)  # stereo.backend: the priors shown; benchmark: its published figures join the means
     s.set_defaults(func=_cmd_report)
@@ -575,7 +347,7 @@ def _add_stereo_parsers(sub) -> None:
     s.add_argument("--max-disparity", type=int, default=192,
                    help="disparity levels, a multiple of 16 (default %(default)s, as trained: another value rescales "
                         "the output)")
-    s.add_argument("--size", metavar="HEIGHTxWIDTH", help="a fixed input size (images are resized to it); default "
+    s.add_argument("--size", type=_height_width, metavar="HEIGHTxWIDTH", help="a fixed input size (images are resized to it); default "
                                                           "any size, padded to a multiple of 16 and at least 256")
     s.set_defaults(func=_cmd_export_stereo)
 
@@ -634,24 +406,24 @@ def _add_mesh_parsers(sub) -> None:
 
 
 def _add_bench_parser(sub) -> None:
+    """``eve3d bench rasterizer``, ``training``, ``stereo`` and ``evaluate``: one part timed."""
     from eve3d.core.settings import RENDER_BACKENDS
-    from eve3d.synth import KINDS
 
     s = sub.add_parser("bench", help="speed and memory benchmarks (print a table)")
     what = s.add_subparsers(dest="benchmark", required=True)
     r = what.add_parser("rasterizer", help="forward/backward time and peak memory of one render")
-    r.add_argument("--sizes", help="GAUSSIANSxWIDTHxHEIGHT,... (default 5000x160x120,20000x320x240,100000x640x480)")
+    r.add_argument("--sizes", type=_rasterizer_sizes, help="GAUSSIANSxWIDTHxHEIGHT,... (default 5000x160x120,20000x320x240,100000x640x480)")
     r.add_argument("--backend", choices=RENDER_BACKENDS, default="auto")
     r.add_argument("--repeats", type=int, default=5, help="timed runs per size (median; one more warms up)")
     r.add_argument("--json", action="store_true", help="machine-readable output")
-    r.set_defaults(func=_cmd_bench)
+    r.set_defaults(func=_cmd_bench_rasterizer)
     tr = what.add_parser("training", help="mean time of each part of a training step (projection, rasteriser, "
                                           "losses, their backward, optimiser, densification) on the generated object")
     tr.add_argument("--stages", nargs="+", metavar="STAGE",
                     help="pretrain and/or trained methods (default: pretrain pgsr eve3d)")
-    tr.add_argument("--steps", type=int, default=30, help="timed steps per stage (mean)")
-    tr.add_argument("--warmup", type=int, default=3, help="untimed steps before them")
-    tr.add_argument("--gaussians", type=int, default=35_000,
+    tr.add_argument("--steps", type=_positive, default=30, help="timed steps per stage (mean)")
+    tr.add_argument("--warmup", type=_at_least_zero, default=3, help="untimed steps before them")
+    tr.add_argument("--gaussians", type=_positive, default=35_000,
                     help="Gaussians of the initial model (sparse points, or eve3d's prior points)")
     tr.add_argument("--start", type=int, help="step of the schedule to start from (default: where every joint-stage "
                                               "term is on, max of dn_from, mv_from, prior_from, joint_from)")
@@ -671,7 +443,14 @@ def _add_bench_parser(sub) -> None:
     ev.add_argument("--gt", help="GT mesh of the given meshes")
     ev.add_argument("--json", action="store_true", help="machine-readable output")
     ev.set_defaults(func=_cmd_bench_evaluate)
+
+    _add_bench_run_parsers(what)
+
+
+def _add_bench_run_parsers(what) -> None:
+    """``eve3d bench standin``, ``scale``, ``methods`` and ``real``: benchmarks that run stages."""
     from eve3d.core.datasets import BENCHMARKS
+    from eve3d.synth import KINDS
 
     sd = what.add_parser("standin", help="a generated object written as a benchmark's download lays out one scene, "
                                          "with its ground-truth files: try or time a benchmark config without it")
@@ -688,13 +467,13 @@ def _add_bench_parser(sub) -> None:
                     help="no training: fuse the exact depth of VIEWS views at WIDTHxHEIGHT (default 300 at 1920x1080) "
                          "and score fused meshes against --gt-points ground-truth points (synthetic, tnt, dtu)")
     sc.add_argument("--kind", choices=list(KINDS), default="room", help="the generated scene (default room)")
-    sc.add_argument("--views", type=int, help="views of the generated scene (default 300)")
-    sc.add_argument("--width", type=int, help="its image width (default 960; --memory: the depth maps', 1920)")
-    sc.add_argument("--height", type=int, help="its image height (default 540; --memory: 1080)")
-    sc.add_argument("--iterations", type=int, help="pretrain and joint iterations (the preset's 1500 at cpu); the "
+    sc.add_argument("--views", type=_positive, help="views of the generated scene (default 300)")
+    sc.add_argument("--width", type=_positive, help="its image width (default 960; --memory: the depth maps', 1920)")
+    sc.add_argument("--height", type=_positive, help="its image height (default 540; --memory: 1080)")
+    sc.add_argument("--iterations", type=_positive, help="pretrain and joint iterations (the preset's 1500 at cpu); the "
                                                    "schedule's other steps stay as configured (--set to move them)")
     sc.add_argument("--methods", nargs="+", metavar="METHOD", help="trained methods (default: pgsr eve3d)")
-    sc.add_argument("--gt-points", type=int, help="--memory: ground-truth points (and synthetic samples), default 10M")
+    sc.add_argument("--gt-points", type=_positive, help="--memory: ground-truth points (and synthetic samples), default 10M")
     sc.add_argument("--protocols", nargs="+", choices=["synthetic", "tnt", "dtu"],
                     help="--memory: the evaluations to run (default: all three)")
     sc.add_argument("--work", help="folder for the generated data, outputs and each stage's log (kept; new or empty); "
@@ -705,7 +484,7 @@ def _add_bench_parser(sub) -> None:
     for name, func, config, help in [
             ("methods", _cmd_bench_methods, "methods", "run every method on the generated object and room (Snakemake) "
                                                         "and print scores, times and the priors' accuracy"),
-            ("real", _cmd_bench_real, "real", "run a real capture as a user would (photos and their path, Snakemake) "
+            ("real", _cmd_bench_methods, "real", "run a real capture as a user would (photos and their path, Snakemake) "
                                               "and print views registered, stage times, held-out PSNR/SSIM, the "
                                               "priors' density and agreement, the meshes' size")]:
         me = what.add_parser(name, help=help)

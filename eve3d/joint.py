@@ -320,3 +320,12 @@ def train_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
     write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth=depth_kind)
     trainer.checkpoint.remove()
     return metrics
+
+
+def run(settings: JointSettings, *, scene: Path, out: Path, priors: Path | None = None) -> None:
+    """The ``joint`` stage: train ``settings.method`` on the posed dataset ``scene`` into ``out``."""
+    from eve3d.core.io import load_scene
+
+    metrics = train_joint(load_scene(scene), Path(out), settings, Path(priors) if priors else None)
+    print(f"training views: PSNR {metrics['train']['psnr']:.2f} dB; wrote {out}/point_cloud.ply "
+          f"({metrics['gaussians']} Gaussians) and {out}/depth/")

@@ -468,3 +468,24 @@ def write_mesh_views(mesh, scene: Scene, out_dir: Path, size: int = 640) -> list
         paths.append(out_dir / f"{cam.view_id}.png")
         write_image(paths[-1], shaded(mesh, cam))
     return paths
+
+
+def run(settings: MeshSettings, *, scene: Path, depth: Path, out: Path, kind: str | None = None) -> None:
+    """The ``mesh`` stage: fuse the maps in ``depth`` over ``scene``'s cameras into ``out``,
+    with shaded views of it beside (``kind`` overrides the scene's kind)."""
+    from eve3d.core.io import load_scene
+    from eve3d.core.layout import MESH_VIEWS_DIR
+
+    out = Path(out)
+    check_mesh_path(out)
+    loaded = load_scene(scene, check_images=False)
+    if kind:
+        loaded.kind = kind
+    mesh = fuse(loaded, Path(depth), settings)
+    write_mesh(mesh, out)
+    report = extent_report(mesh, loaded)
+    print(f"wrote {out}: {len(mesh.vertices)} vertices, {report['triangles']} triangles, extent {report['extent']}"
+          + (f", {report['extent_ratio']:.2f}× the sparse points' 5–95 % box {report['sparse_extent']}"
+             if report["extent_ratio"] is not None else ""))
+    views = write_mesh_views(mesh, loaded, out.with_name(MESH_VIEWS_DIR))
+    print(f"wrote {len(views)} shaded views to {views[0].parent}")

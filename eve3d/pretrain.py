@@ -132,3 +132,14 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth="depth_expected")
     trainer.checkpoint.remove()
     return metrics
+
+
+def run(settings: PretrainSettings, *, scene: Path, out: Path) -> None:
+    """The ``pretrain`` stage: the posed dataset ``scene`` to a model in ``out``."""
+    from eve3d.core.io import load_scene
+
+    metrics = pretrain(load_scene(scene), Path(out), settings)
+    held = metrics["held_out"]
+    if held:
+        print(f"held-out views ({held['views']}): PSNR {held['psnr']:.2f} dB, SSIM {held['ssim']:.4f}")
+    print(f"wrote {out}/point_cloud.ply ({metrics['gaussians']} Gaussians)")

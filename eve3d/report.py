@@ -1,4 +1,5 @@
-"""The report's pages (``eve3d report``): what Snakemake's ``--report`` gathers into one
+"""The summary table (``eve3d summary``, :func:`run_summary`) and the report's pages
+(``eve3d report``, :func:`run`): what Snakemake's ``--report`` gathers into one
 self-contained HTML file, from the outputs the ``report`` rule marks with ``report(...)``.
 
 * ``summary.html``: every scene × method of ``summary.csv`` (table ``#summary``), then each
@@ -21,16 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.core.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, Layout, benchmark_seconds
+from eve3d.core.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, SUMMARY_COLUMNS, Layout, benchmark_seconds
+from eve3d.core.settings import StereoSettings
 
 METRICS_CHARTED = (("fscore", "F-score (higher is better)"), ("chamfer", "Chamfer distance (lower is better)"),
                    ("psnr", "held-out PSNR in dB (higher is better)"))
 """summary.csv columns drawn as bar charts, with their axis titles."""
-SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "points", "accuracy", "completeness", "chamfer",
-                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "depth_on_empty", "psnr",
-                   "ssim", "failed", "log")
-"""The columns of ``summary.csv`` (``eve3d summary``) and of the report's table; a row whose
-jobs failed has only ``failed`` (the rule and its first error line) and ``log``."""
 STYLE = ("<style>body{font-family:sans-serif;margin:1em}table{border-collapse:collapse;margin-bottom:1.5em}"
          "th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}th{background:#eee}"
          "td:first-child,td:nth-child(2){text-align:left}</style>")
@@ -257,3 +254,66 @@ def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backen
                 scene_sheet(panels, f"{scene} · {method}", path)
                 written.append(path)
     return written
+
+
+def run_summary(metrics: list[Path], *, out: Path, failed: Path | None = None) -> None:
+    """The ``summary`` rule: the ``metrics`` records gathered into ``out`` (summary.csv) and
+    the training stages' held-out views into ``summary_views.csv`` beside it, each printed;
+    ``failed`` holds the rows of jobs that failed (``eve3d.core.failures``)."""
+    import json
+
+    from eve3d.core.layout import (EVALUATION, METRICS_FILE, RECORD, TRAIN_METRICS_FILE, TRAINING, VIEW_COLUMNS,
+                                   format_table, locate)
+    from eve3d.core.scene import Eve3dError
+
+    rows, view_rows = [], []
+    for path in map(Path, metrics):
+        try:
+            m = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise Eve3dError(f"{path}: cannot read metrics ({e})") from None
+        if not isinstance(m, dict) or m.get(RECORD) not in (EVALUATION, TRAINING):
+            found = f"{RECORD!r} is {m[RECORD]!r}" if isinstance(m, dict) and RECORD in m else f"no {RECORD!r} field"
+            raise Eve3dError(f"{path}: {found}; a metrics record says what it holds: {RECORD!r}: {EVALUATION!r} "
+                             f"({METRICS_FILE}, written by eve3d evaluate) or {TRAINING!r} ({TRAIN_METRICS_FILE}, "
+                             f"written by pretrain and joint); rerun the stage that wrote it (snakemake --forcerun evaluate)")
+        scene, stage = locate(path)  # names the row when the record does not
+        if m[RECORD] == TRAINING:  # a training stage's novel-view metrics
+            view_rows.append({"scene": scene, "stage": stage, **m["held_out"]})
+            continue
+        m.setdefault("scene", scene)
+        m.setdefault("method", stage)
+        rows.append(m)
+    if failed:  # rows of a workflow that ended with failed jobs
+        try:
+            rows += json.loads(Path(failed).read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise Eve3dError(f"{failed}: cannot read the failed rows ({e})") from None
+    rows.sort(key=lambda r: (r["scene"], r["method"]))
+    out = Path(out)
+    _write_csv(out, SUMMARY_COLUMNS, rows)
+    print(format_table(rows, SUMMARY_COLUMNS))
+    if view_rows:
+        view_rows.sort(key=lambda r: (r["scene"], r["stage"]))
+        _write_csv(out.with_name(f"{out.stem}_views.csv"), VIEW_COLUMNS, view_rows)
+        print("\nheld-out views of the training stages (at the training resolution)")
+        print(format_table(view_rows, VIEW_COLUMNS))
+
+
+def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
+    from eve3d.core.fileio import atomic_path
+
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(rows)
+
+
+def run(settings: StereoSettings, benchmark: str | None = None, *, results: Path, out: Path,
+        datasets: Mapping[str, Path]) -> None:
+    """The ``report_pages`` rule: the pages of ``results`` into ``out`` (``settings.backend``:
+    the priors shown; ``benchmark``: its published figures join the means)."""
+    written = write_report(Layout(results), Path(out), datasets, settings.backend, benchmark)
+    print(f"wrote {len(written)} report pages to {out}")
+

@@ -96,3 +96,7 @@ def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
     return model_dir
 
 
+def run(settings: SfmSettings, *, dataset: Path, out: Path) -> None:
+    """The ``sfm`` stage: ``dataset``'s photos to an undistorted model in ``out``."""
+    run_sfm(Path(dataset), Path(out), settings)
+    print(f"wrote {out}")

@@ -21,7 +21,8 @@ from eve3d.core.layout import TONE_FILE  # written by the pretrain beside its PL
 from eve3d.core.maps import save_maps
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Eve3dError, Scene
-from eve3d.core.settings import SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings
+from eve3d.core.settings import (SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings,
+                                 StereoSettings, pick)
 from eve3d.gaussians.neighbours import select_neighbours
 from eve3d.priors.matching import left_right_consistent, local_std
 
@@ -300,3 +301,59 @@ def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSet
     """``stereo_depth --backend sgbm``."""
     stereo_priors(scene, stereo_dir, out_dir, lambda l, r, search: sgbm_disparity(l, r, search[1], settings, search[0]),
                   "SGBM", preview, check)
+
+
+def run_render(settings: StereoSettings, rendering: RenderSettings, *, scene: Path, model: Path, out: Path) -> None:
+    """The ``stereo_render`` stage: right views of ``scene`` rendered by the pretrained ``model``
+    (``rendering``: as it was trained) into ``out``."""
+    from eve3d.core.io import load_scene
+
+    info = render_right_views(load_scene(scene), Path(model), Path(out), pick(BaselineSettings, settings), rendering)
+    b = [v["baseline"] for v in info["views"].values()]
+    print(f"wrote {len(b)} right views to {out}/right (baseline {min(b):.4g} to {max(b):.4g})")
+
+
+def run_depth(settings: StereoSettings, *, scene: Path, out: Path, stereo: Path | None = None,
+              gt_mesh: Path | None = None, preview: bool = True) -> None:
+    """The ``stereo_depth`` stage: ``settings.backend``'s depth priors of ``scene`` into
+    ``out``, from the right views in ``stereo`` (the oracle: from ``gt_mesh``, else the
+    scene's own)."""
+    from eve3d.core.io import load_scene
+
+    loaded, s, out = load_scene(scene), settings, Path(out)
+    check = pick(MatchCheck, s)
+    if s.backend == "oracle":
+        from eve3d.priors.oracle import oracle_priors
+
+        oracle_priors(loaded, out, Path(gt_mesh) if gt_mesh else None, preview=preview)
+    elif not stereo:
+        raise Eve3dError(f"--backend {s.backend} needs --stereo (the output folder of `eve3d stereo-render`)")
+    elif s.backend == "sgbm":
+        sgbm_priors(loaded, Path(stereo), out, pick(SgbmSettings, s), preview=preview, check=check)
+    elif s.backend == "mccnn":
+        from eve3d.priors.mccnn import MccnnStereo
+
+        stereo_priors(loaded, Path(stereo), out, MccnnStereo(s.mccnn, s.min_texture, s.block_size), "MC-CNN",
+                      preview=preview, check=check)
+    else:
+        from eve3d.priors.onnx import OnnxStereo
+
+        if not s.onnx.model:
+            raise Eve3dError("--backend onnx needs the model spec: stereo.onnx in --config, or --set stereo.onnx.model=FILE")
+        stereo_priors(loaded, Path(stereo), out, OnnxStereo(s.onnx), "ONNX stereo", preview=preview, check=check)
+    print(f"wrote {len(loaded.cameras)} depth maps to {out}")
+
+
+def run_export(size: tuple[int, int] | None, max_disparity: int, *, weights: str | None, out: str) -> None:
+    """``eve3d export-stereo psmnet``: PSMNet to ONNX at ``size`` (HEIGHT, WIDTH; None: any)
+    with ``max_disparity`` levels, into ``out``, and the config that uses it."""
+    import yaml
+
+    from eve3d.priors.psmnet import SPEC_FILE, export_psmnet
+
+    config = export_psmnet(weights, out, size, max_disparity)
+    model = Path(config["stereo"]["onnx"]["model"])
+    print(f"wrote {model} and {model.parent / SPEC_FILE}; use it with --config {model.parent / SPEC_FILE}, "
+          "or paste into your config:")
+    print(yaml.safe_dump(config, sort_keys=False, default_flow_style=None), end="")
+

@@ -34,7 +34,7 @@ from eve3d.core.io.colmap import triangulate_known_poses, write_colmap
 from eve3d.core.io.loader import METADATA
 from eve3d.core.raycast import MeshRaycaster, seen_by
 from eve3d.core.scene import Camera, Scene
-from eve3d.core.settings import SfmSettings
+from eve3d.core.settings import SfmSettings, SyntheticSettings
 from eve3d.core.surface import sample_surface
 
 LIGHT = np.array([0.3, -0.5, 1.0]) / np.linalg.norm([0.3, -0.5, 1.0])
@@ -404,3 +404,11 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
             meta["object_radius"] = 1.0
         (tmp / METADATA).write_text(json.dumps(meta, indent=2))
     return out
+
+
+def run(settings: SyntheticSettings, *, kind: str, out: Path, images_only: bool = False) -> None:
+    """The ``synth`` stage: the generated scene ``kind``, sized by ``settings``, into ``out``."""
+    s = settings
+    generate(kind, Path(out), views=s.views, width=s.width, height=s.height, seed=s.seed, images_only=images_only,
+             arc=s.arc, surface_samples=s.surface_samples)
+    print(f"wrote {out}")

@@ -49,3 +49,35 @@ def test_stages_use_the_library_and_never_each_other():
         if bad:
             wrong[str(path.relative_to(PACKAGE))] = sorted(bad)
     assert not wrong, f"imports against the rule (module: what it may not import): {wrong}"
+
+
+STAGE_RUNS = {"synth": {"run"}, "sfm": {"run"}, "pretrain": {"run"}, "stereo": {"run_render", "run_depth", "run_export"},
+              "joint": {"run"}, "mesh": {"run"}, "evaluate": {"run", "check"}, "report": {"run_summary", "run"}}
+"""What each stage exposes to the front (docs/architecture.md, "Stages and the front")."""
+
+
+def stage_source(stage: str) -> Path:
+    return PACKAGE / stage / "__init__.py" if (PACKAGE / stage).is_dir() else PACKAGE / f"{stage}.py"
+
+
+def test_each_stage_runs_from_its_settings_and_keyword_paths():
+    for stage, names in STAGE_RUNS.items():
+        functions = {n.name: n for n in ast.parse(stage_source(stage).read_text()).body if isinstance(n, ast.FunctionDef)}
+        for name in names:
+            assert name in functions, f"{stage} has no {name}()"
+            args = functions[name].args
+            assert args.kwonlyargs, f"{stage}.{name}: its paths are keyword arguments"
+            if name not in ("run_summary", "run_export"):  # those two have no settings section
+                assert args.args[0].arg == "settings", f"{stage}.{name}: its settings come first"
+
+
+def test_the_cli_calls_a_stage_only_through_its_run_functions():
+    """Beside the run functions the CLI may read a stage's registries (UPPERCASE names) for
+    its flags' choices, nothing else."""
+    cli = ast.parse((PACKAGE / "cli.py").read_text())
+    for node in ast.walk(cli):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[1:2] and \
+                node.module.split(".")[1] in STAGES:
+            stage = node.module.split(".")[1]
+            wrong = {a.name for a in node.names} - STAGE_RUNS[stage]
+            assert all(name.isupper() for name in wrong), f"cli.py imports {sorted(wrong)} from {node.module}"

@@ -61,6 +61,26 @@ RECORD = "record"
 EVALUATION = "evaluation"
 TRAINING = "training"
 
+SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "points", "accuracy", "completeness", "chamfer",
+                   "precision", "recall", "fscore", "depth_signed_error", "depth_error", "depth_on_empty", "psnr",
+                   "ssim", "failed", "log")
+"""The columns of ``summary.csv`` (``eve3d summary``) and of the report's table; a row whose
+jobs failed has only ``failed`` (the rule and its first error line) and ``log``."""
+VIEW_COLUMNS = ("scene", "stage", "views", "psnr", "ssim")
+"""The columns of ``summary_views.csv``: the training stages' held-out views."""
+
+
+def format_table(rows: list[dict], columns: tuple[str, ...] = SUMMARY_COLUMNS) -> str:
+    """A plain-text table of metric rows (missing values as '-')."""
+    def cell(v):
+        return f"{v:.4g}" if isinstance(v, float) else ("-" if v is None else str(v))
+
+    cols = [c for c in columns if any(c in r for r in rows)]
+    table = [cols] + [[cell(r.get(c)) for c in cols] for r in rows]
+    widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
+    lines = ["  ".join(v.ljust(w) for v, w in zip(row, widths)) for row in table]
+    return "\n".join([lines[0], "  ".join("-" * w for w in widths)] + lines[1:])
+
 
 @dataclass(frozen=True)
 class Layout:

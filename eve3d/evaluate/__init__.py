@@ -15,7 +15,7 @@ protocol is scored on held-out views (:data:`WITHOUT_GT`). One module per protoc
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -149,3 +149,77 @@ def protocol_for(name: str | None, dataset_format: str, where: str = "protocol",
     if name not in PROTOCOLS:
         raise Eve3dError(f"{where}: unknown protocol {name!r}; choose one of {', '.join(PROTOCOLS)}")
     return PROTOCOLS[name]
+
+
+def _inputs(scene: Path, protocol: str | None, ground_truth: Mapping[str, Path | None]) -> tuple[Protocol, Scene, dict]:
+    """The protocol of a job (its default counts the ``ground_truth`` given), the scene, and
+    :class:`EvalInputs`' ground-truth fields as Paths."""
+    from eve3d.core.io import load_scene
+
+    loaded = load_scene(scene, check_images=False)
+    fields = {key: name for p in PROTOCOLS.values() for name, key in p.config_inputs.items()}
+    chosen = protocol_for(protocol, loaded.extras.get("format", "colmap"), "--protocol",
+                          lambda key: ground_truth.get(fields[key]) is not None)
+    return chosen, loaded, {k: Path(v) if v else None for k, v in ground_truth.items()}
+
+
+def check(settings: EvalSettings, *, scene: Path, out: Path, protocol: str | None = None,
+          ground_truth: Mapping[str, Path | None]) -> None:
+    """The ``check_ground_truth`` rule: that the ground truth (:class:`EvalInputs` fields
+    ``gt``, ``obs_mask``, ``plane``) lines up with ``scene``'s cameras, written to ``out``;
+    ``settings.ground_truth_check`` says whether a misfit fails, warns or is not looked for."""
+    import json
+    import sys
+
+    from eve3d.core.fileio import atomic_path
+
+    chosen, loaded, gt = _inputs(scene, protocol, ground_truth)
+    checked = {"protocol": chosen.name, "check": settings.ground_truth_check}
+    if settings.ground_truth_check != "off":
+        try:
+            checked.update(chosen.check_ground_truth(EvalInputs(loaded, None, Path(out), **gt, settings=settings)))
+            print(f"the ground truth of {scene} lines up with its cameras ({chosen.name} protocol): "
+                  + ", ".join(f"{k} {v:.3g}" for k, v in checked.items() if isinstance(v, float)))
+        except Eve3dError as e:
+            if settings.ground_truth_check == "error":
+                raise Eve3dError(f"{e} (evaluate.ground_truth_check: warn or off goes on regardless)") from None
+            print(f"warning: {e}", file=sys.stderr)
+            checked["warning"] = str(e)
+    with atomic_path(Path(out)) as tmp:
+        tmp.write_text(json.dumps(checked, indent=2))
+
+
+def run(settings: EvalSettings, min_confidence: float, *, scene: Path, out: Path, protocol: str | None = None,
+        ground_truth: Mapping[str, Path | None], mesh: Path | None = None, model: Path | None = None,
+        depth: Path | None = None, exact_depth: Path | None = None, row: Mapping[str, str] | None = None) -> None:
+    """The ``evaluate`` stage: score ``mesh`` (or the trained ``model``, as the protocol asks)
+    against the ground truth into ``out`` (metrics.json), with the accuracy of the ``depth``
+    maps it fused against ``exact_depth`` (pixels of confidence ≥ ``min_confidence``);
+    ``row`` (scene, method) names the record."""
+    import json
+
+    from eve3d.core.fileio import atomic_path
+    from eve3d.core.layout import EVALUATION, RECORD, format_table
+
+    chosen, loaded, gt = _inputs(scene, protocol, ground_truth)
+    reconstruction = model if chosen.scores == "model" else mesh
+    if reconstruction is None:
+        flag = "--model (a trained point_cloud.ply)" if chosen.scores == "model" else "--mesh"
+        raise Eve3dError(f"the {chosen.name} protocol scores a {chosen.scores}: give {flag}")
+    if bool(depth) != bool(exact_depth):
+        raise Eve3dError("--depth and --exact-depth go together: the maps the mesh fused, and the exact depth of "
+                         "the same views")
+    metrics = chosen.run(EvalInputs(loaded, Path(reconstruction), Path(out), **gt, settings=settings))
+    if depth:
+        from eve3d.evaluate.depth import depth_accuracy
+
+        acc = depth_accuracy(Path(depth), Path(exact_depth), min_confidence=min_confidence)
+        metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
+                        "depth_density": acc["density"], "depth_on_empty": acc["on_empty"], "depth_maps": str(depth)})
+    if "tau" in metrics:
+        print(f"tau = {metrics['tau']:.5g} ({metrics['tau_rule']})")
+    metrics.update(row or {})
+    with atomic_path(Path(out)) as tmp:
+        tmp.write_text(json.dumps({RECORD: EVALUATION, **metrics}, indent=2))
+    print(format_table([metrics]))
+

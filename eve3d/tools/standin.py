@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.core.scene import Scene
+from eve3d.core.scene import Eve3dError, Scene
 
 
 def write_dtu_layout(scene: Scene, root: Path, scale_mat: np.ndarray, images: str = "image") -> None:
@@ -209,3 +209,21 @@ def write_standin(benchmark: str, scene: Scene, root: Path) -> Path:
         return write_dtu_release(scene, root, scan=int(STANDIN_SCENE["dtu"][4:]))
     writer = {"tnt": write_tnt_release, "mipnerf360": write_mipnerf360_release}[benchmark]
     return writer(scene, root, STANDIN_SCENE[benchmark])
+
+
+def run(benchmark: str, root: Path, views: int = 49, width: int = 1600, height: int = 1200) -> None:
+    """``eve3d bench standin``: a generated object in ``benchmark``'s layout under ``root``."""
+    import tempfile
+
+    from eve3d.core.io import load_scene
+    from eve3d.synth import generate
+
+    root, name = Path(root), STANDIN_SCENE[benchmark]
+    if (root / name).exists():
+        raise Eve3dError(f"{root / name}: already there; give an empty folder")
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = load_scene(generate("object", Path(tmp) / "object", views=views, width=width, height=height))
+        folder = write_standin(benchmark, scene, root)
+    print(f"wrote a stand-in {name} ({views} views, {width}×{height}) to {folder}; run it:\n"
+          f"  snakemake -c2 --configfile config/benchmarks/{benchmark}.yaml --replace-workflow-config "
+          f"--config root={root} 'only=[{name}]'")

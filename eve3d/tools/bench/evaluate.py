@@ -82,3 +82,16 @@ def format_evaluate_table(rows: list[dict]) -> str:
     lines += [f"{r['mesh']:<{w}} {r['triangles']:>10,} {r['seconds']:>8.1f} {r['peak_mb']:>8.0f} {r['precision']:>9.4f} "
               f"{r['recall']:>7.4f} {r['fscore']:>6.4f}" for r in rows]
     return "\n".join(lines)
+
+
+def run(meshes: list[str] = (), scene: str | None = None, gt: str | None = None, as_json: bool = False) -> None:
+    """``eve3d bench evaluate``: the table (or JSON) of :func:`bench_evaluate`."""
+    import json
+    from pathlib import Path
+
+    from eve3d.core.scene import Eve3dError
+
+    if meshes and not (scene and gt):
+        raise Eve3dError("--meshes needs --scene (the cameras) and --gt (the GT mesh)")
+    rows = bench_evaluate([("/".join(Path(m).parts[-3:]), str(m)) for m in meshes], scene, gt)
+    print(json.dumps(rows, indent=2) if as_json else format_evaluate_table(rows))

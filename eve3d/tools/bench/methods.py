@@ -143,3 +143,33 @@ def format_real_report(report: dict) -> str:
 
 
 # --- training step -------------------------------------------------------------------------
+
+
+def run_workflow(config_file: str, cores: int = 2, report_only: bool = False) -> dict:
+    """Run the workflow of a benchmark's config (unless ``report_only``); its resolved config."""
+    import subprocess
+    import sys
+
+    from eve3d.config import SNAKEFILE, load_config
+    from eve3d.core.layout import Layout
+    from eve3d.core.scene import Eve3dError
+
+    config = load_config(config_file)
+    if not report_only:
+        cmd = [sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), "--configfile", config_file,
+               "--replace-workflow-config", f"-c{cores}", "--quiet", "rules", "progress"]
+        if subprocess.run(cmd).returncode != 0:
+            raise Eve3dError(f"the workflow of {config_file} failed (its logs: {Layout(config['results']).logs()}/)")
+    return config
+
+
+def run(config_file: str, cores: int = 2, report_only: bool = False, as_json: bool = False) -> None:
+    """``eve3d bench methods``: the table (or JSON) of :func:`methods_report`."""
+    report = methods_report(run_workflow(config_file, cores, report_only))
+    print(json.dumps(report, indent=2) if as_json else format_methods_report(report))
+
+
+def run_real(config_file: str, cores: int = 2, report_only: bool = False, as_json: bool = False) -> None:
+    """``eve3d bench real``: the table (or JSON) of :func:`real_report`."""
+    report = real_report(run_workflow(config_file, cores, report_only))
+    print(json.dumps(report, indent=2) if as_json else format_real_report(report))

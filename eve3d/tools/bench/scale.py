@@ -308,3 +308,26 @@ def format_scale_report(report: dict) -> str:
               f"{report['machine']}; load average (1 min) {before:.1f} before, {after:.1f} after",
               f"data and logs in {report['work']}"]
     return "\n".join(lines)
+
+
+def run(config_file: str | None, sets: list[str], *, memory: bool = False, kind: str = SCALE_KIND,
+        size: tuple[int | None, int | None, int | None] = (None, None, None), iterations: int | None = None,
+        methods: Sequence[str] | None = None, gt_points: int | None = None, protocols: Sequence[str] | None = None,
+        work: str | None = None, as_json: bool = False) -> None:
+    """``eve3d bench scale``: the table (or JSON) of :func:`bench_scale`; ``size`` (views,
+    width, height) and ``iterations`` override :data:`SCALE_SIZE` and the config's."""
+    import contextlib
+    import tempfile
+
+    from eve3d.config import job_config
+
+    defaults = SCALE_SIZE["memory" if memory else "pipeline"]
+    flags = {f"synthetic.{k}": given or default for k, given, default in zip(("views", "width", "height"), size, defaults)}
+    if iterations is not None:
+        flags.update({"pretrain.iterations": iterations, "joint.iterations": iterations})
+    config = job_config(config_file, sets, flags)
+    with contextlib.ExitStack() as stack:
+        work = Path(work) if work else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="eve3d-scale-")))
+        report = bench_scale(work, config, memory=memory, kind=kind, methods=methods or SCALE_METHODS,
+                             gt_points=gt_points or GT_POINTS, protocols=protocols or MEMORY_PROTOCOLS)
+    print(json.dumps(report, indent=2) if as_json else format_scale_report(report))

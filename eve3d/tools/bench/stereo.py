@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.scene import Eve3dError
 from eve3d.evaluate.depth import WEAK_TEXTURE
 
 
@@ -97,3 +99,26 @@ def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
 
 
 # --- evaluation ----------------------------------------------------------------------------
+
+
+def run(priors: list[Path], scene: Path | None = None, as_json: bool = False) -> None:
+    """``eve3d bench stereo``: the Motorcycle pair, then each prior folder scored against the
+    oracle beside it, or (a real capture, no oracle) its views' agreement over ``scene``."""
+    import json
+
+    rows, agreement = [], []
+    for folder in map(Path, priors):
+        oracle, label = folder.parent / "oracle", f"{folder.parent.parent.name}/{folder.name}"
+        if oracle.is_dir():
+            rows.append(prior_accuracy(folder, oracle, label))
+        elif scene:
+            from eve3d.core.io import load_scene
+            from eve3d.evaluate.depth import prior_agreement
+
+            agreement.append({**prior_agreement(load_scene(scene, check_images=False), folder), "data": label})
+        else:
+            raise Eve3dError(f"{folder}: no oracle priors beside it ({oracle}) to score against; give --scene (the "
+                             f"posed dataset) to measure how neighbouring views' priors agree instead")
+    moto = [stereo_motorcycle(), stereo_motorcycle(wls=True)]
+    print(json.dumps({"motorcycle": moto, "priors": rows, "agreement": agreement}, indent=2) if as_json
+          else format_stereo_tables(moto, rows, agreement))

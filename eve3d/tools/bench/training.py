@@ -382,3 +382,12 @@ def format_training_table(report: dict) -> str:
 
 
 # --- scale ---------------------------------------------------------------------------------
+
+
+def run(config: dict, stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, warmup: int = 3,
+        gaussians: int = 35_000, start: int | None = None, as_json: bool = False) -> None:
+    """``eve3d bench training``: the table (or JSON) of :func:`bench_training`."""
+    import json
+
+    report = bench_training(stages, steps, warmup, gaussians, config, start)
+    print(json.dumps(report, indent=2) if as_json else format_training_table(report))
