@@ -30,7 +30,7 @@ def _settings(a: argparse.Namespace, cls: type, section: str, config: dict | Non
 
 def _naming_flags(a: argparse.Namespace, build: Callable[[], Any]) -> Any:
     """``build()``, its error about a key that a flag of ``a`` gave naming that flag too."""
-    from eve3d.core.settings import flag
+    from eve3d.core.settings_fields import flag
 
     try:
         return build()
@@ -57,7 +57,8 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
-    from eve3d.core.settings import PretrainSettings, RenderSettings, StereoSettings, pick
+    from eve3d.core.settings import PretrainSettings, RenderSettings, StereoSettings
+    from eve3d.core.settings_fields import pick
     from eve3d.stereo import run_render
 
     config = _config(a)
@@ -240,7 +241,7 @@ def _settings_flags(group, cls: type, section: str, only: tuple[str, ...] = (), 
     its name, kind, choices and help (the field's first docstring sentence and its default
     under the cpu preset) come from ``eve3d.core.settings``."""
     from eve3d.config import TRAINING_SECTIONS
-    from eve3d.core.settings import flag, keys
+    from eve3d.core.settings_fields import flag, keys
 
     preset = _preset()
     shared = preset.get("train") or {} if section in TRAINING_SECTIONS else {}

@@ -14,7 +14,7 @@ from typing import Any
 import yaml
 
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import deep_merge
+from eve3d.core.settings_fields import deep_merge
 
 REPO = Path(__file__).resolve().parent.parent
 SNAKEFILE = REPO / "workflow" / "Snakefile"
@@ -84,7 +84,9 @@ def with_section_defaults(config: dict, source: str = "config") -> dict:
     and ``evaluate`` keys are checked too. Errors name ``source`` and the key path."""
     import dataclasses
 
-    from eve3d.core.settings import SECTIONS, EvalSettings, SyntheticSettings, from_mapping
+    from eve3d.core.settings import SECTIONS, EvalSettings, SyntheticSettings
+
+    from eve3d.core.settings_fields import from_mapping
 
     try:
         for section, cls in SECTIONS.items():
@@ -204,7 +206,7 @@ def stage_settings(cls: type, section: str, config: Mapping, overrides: dict | N
     """A stage's settings from a config: its ``section`` (a training stage's over the shared
     ``train`` section), then ``overrides`` (a method's settings) merged key by key, plus
     ``fixed``; built strictly by ``cls`` (errors name the key path)."""
-    from eve3d.core.settings import from_mapping
+    from eve3d.core.settings_fields import from_mapping
 
     training = section in TRAINING_SECTIONS[1:]
     shared = config.get("train") or {} if training else {}

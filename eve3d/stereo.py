@@ -21,8 +21,8 @@ from eve3d.core.layout import TONE_FILE  # written by the pretrain beside its PL
 from eve3d.core.maps import save_maps
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Eve3dError, Scene
-from eve3d.core.settings import (SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings,
-                                 StereoSettings, pick)
+from eve3d.core.settings import SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings, StereoSettings
+from eve3d.core.settings_fields import pick
 from eve3d.gaussians.neighbours import select_neighbours
 from eve3d.priors.matching import left_right_consistent, local_std
 

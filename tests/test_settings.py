@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings,
-                            from_mapping, pick)
+from eve3d.core.settings import SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings
+from eve3d.core.settings_fields import from_mapping, pick
 from tests.helpers import REPO, SNAKEFILE
 
 # Blocks every import of torch in the interpreter it is put in front of.
@@ -114,7 +114,7 @@ def test_defaults_live_once_in_the_settings():
 def test_config_readme_tables_are_generated_from_the_settings():
     """config/README.md's key tables are what `python -m eve3d.tools.keydoc` writes, and every key
     has a docstring to fill its row and its CLI help."""
-    from eve3d.core.settings import keys, sections_of
+    from eve3d.core.settings_fields import keys, sections_of
     from eve3d.tools.keydoc import README, TABLES, with_tables
 
     text = README.read_text()

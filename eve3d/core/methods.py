@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import deep_merge
+from eve3d.core.settings_fields import deep_merge
 
 
 GAUSSIAN_DEVICE = "gpu"

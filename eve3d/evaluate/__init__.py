@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eve3d.core.scene import Eve3dError, Scene
-from eve3d.core.settings import EvalSettings, flag
+from eve3d.core.settings import EvalSettings
+from eve3d.core.settings_fields import flag
 
 
 @dataclass

@@ -13,7 +13,8 @@ from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_pr
 from eve3d.core.io.loader import has_poses
 from eve3d.core.layout import PRETRAIN, Layout
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import PRIOR_BACKEND_DEVICES, PretrainSettings, RenderSettings, flag, pick
+from eve3d.core.settings import PRIOR_BACKEND_DEVICES, PretrainSettings, RenderSettings
+from eve3d.core.settings_fields import flag, pick
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")

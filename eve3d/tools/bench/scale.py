@@ -239,7 +239,8 @@ def bench_scale(work: Path, config: dict, memory: bool = False, kind: str = SCAL
     import yaml
 
     from eve3d.core.layout import EVALUATION, METRICS_FILE, RECORD
-    from eve3d.core.settings import MeshSettings, SyntheticSettings, from_mapping
+    from eve3d.core.settings import MeshSettings, SyntheticSettings
+    from eve3d.core.settings_fields import from_mapping
 
     synthetic = from_mapping(SyntheticSettings, config.get("synthetic") or {}, "synthetic")
     coarsen = from_mapping(MeshSettings, config.get("mesh") or {}, "mesh").coarsen

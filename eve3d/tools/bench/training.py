@@ -323,7 +323,8 @@ def bench_training(stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, war
     from eve3d.config import job_config
     from eve3d.core.io import load_scene
     from eve3d.core.methods import uses_priors
-    from eve3d.core.settings import SyntheticSettings, from_mapping
+    from eve3d.core.settings import SyntheticSettings
+    from eve3d.core.settings_fields import from_mapping
     from eve3d.priors.oracle import oracle_priors
     from eve3d.synth import generate
 
