@@ -18,11 +18,13 @@ demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print t
 	@$(BIN)/snakemake -c1 --quiet all --report $(REPORT)
 	@echo "report: $(REPORT) (open it in a browser)"
 
+# Two workers (pytest-xdist): much of a workflow test is waiting (Slurm's status checks, a
+# chain of jobs each starting Python), which the other worker's tests fill.
 test: $(STAMP)  ## the test suite
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal
 
 check: $(STAMP)  ## the tests not marked slow: the quick tier to run before a commit
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal -m "not slow"
 
 install: $(STAMP)
 

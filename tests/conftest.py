@@ -1,10 +1,23 @@
+import os
 from pathlib import Path
 
 import pytest
 
+if "PYTEST_XDIST_WORKER" in os.environ:
+    # Two workers on two cores (make test): one thread each, set before torch starts. Two
+    # workers of two threads each spin against each other (a gradcheck took 51 s, alone 2 s).
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 from eve3d.core.io import load_scene
 from eve3d.synth import generate
-from tests.helpers import TINY_START
+from tests.helpers import TINY_START, run_cli
+
+
+def pytest_collection_modifyitems(items):
+    """The tests marked slow first (each keeps its place among them): on two workers
+    (``make test``) the long ones then start early on both, and the many short ones fill in
+    around them instead of leaving one worker idle at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(scope="session")
@@ -29,6 +42,24 @@ def tiny_dataset(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def tiny_scene(tiny_dataset):
     return load_scene(tiny_dataset)
+
+
+@pytest.fixture(scope="session")
+def object_photos(tmp_path_factory) -> Path:
+    """16 photos of the object from a 120° arc at 480×360, images only (the poses hidden
+    under gt/): a user's folder of photos, which SfM has to pose. Read only: a test that
+    changes the photos copies them first."""
+    return generate("object", tmp_path_factory.mktemp("photos") / "object", views=16, width=480, height=360, arc=120,
+                    images_only=True)
+
+
+@pytest.fixture(scope="session")
+def object_photos_sfm(object_photos, tmp_path_factory) -> Path:
+    """``eve3d sfm`` of ``object_photos``: the posed dataset."""
+    out = tmp_path_factory.mktemp("photos-sfm") / "sfm"
+    r = run_cli("sfm", object_photos, out)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return out
 
 
 @pytest.fixture

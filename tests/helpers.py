@@ -2,6 +2,8 @@
 imports another test module or conftest: what two modules need lives here."""
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import subprocess
 import sys
@@ -15,10 +17,19 @@ from eve3d.config import REPO, SNAKEFILE  # this checkout and its workflow, whic
 
 # -- running the CLI and the workflow ----------------------------------------------------------
 
-def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """Run ``python -m eve3d ARGS`` in a fresh process, as the workflow does."""
-    return subprocess.run([sys.executable, "-m", "eve3d", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd or REPO)
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    """``eve3d ARGS`` as the workflow runs it (``eve3d.cli.main``, its exit status, stdout and
+    stderr), but in this process: a fresh interpreter would import torch and open3d again for
+    each call. The workflow tests run the real ``python -m eve3d`` processes."""
+    from eve3d.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(list(map(str, args)))
+        except SystemExit as e:  # argparse's usage errors
+            code = e.code if isinstance(e.code, int) else 1
+    return subprocess.CompletedProcess(["eve3d", *map(str, args)], code, out.getvalue(), err.getvalue())
 
 
 def snakemake(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:

@@ -11,7 +11,7 @@ maxdisp 192, and this is what they are run with. Level i of the 1/4-resolution v
 lands on disparity i·(maxdisp − 1)/(maxdisp/4 − 1): i·191/47 as trained. With
 ``align_corners=False`` (today's default, which the original code leaves unset) it lands on
 4i + 1.5, 1.5 px too large; with maxdisp 64 on i·63/15, 3.3 % too large. Outside KITTI the
-weights still overestimate small disparities by about half a pixel (tests/test_psmnet.py):
+weights still overestimate small disparities by about half a pixel (tests/priors/test_psmnet.py):
 their own bias, not a step of this computation.
 
 This module imports torch; ``eve3d`` imports it only where PSMNet is used.

@@ -153,9 +153,12 @@ def test_tiny_scene_runs_through_the_slurm_profile(slurm_cluster, tmp_path):
                        # leave stereo-tsdf nothing to fuse, and this test is about the cluster
                        stereo={"min_alpha": 0.0})
     env = {**slurm_cluster, "EVE3D_SLURM_PARTITION": "eve3dtest", "EVE3D_SLURM_GPU_MODEL": ""}
+    # The plugin checks the first time after --slurm-init-seconds-before-status-checks and, while
+    # nothing has finished, 10 s later each time: 6 s lets most of these few-second jobs be seen
+    # done at the first check (at 1 s each stage waited 11 s).
     r = subprocess.run(["snakemake", "-s", str(SNAKEFILE), "--profile", str(REPO / "profiles/slurm"),
                         "--configfile", str(cfg), "--replace-workflow-config", "--slurm-status-command", "squeue",
-                        "--slurm-init-seconds-before-status-checks", "1", "--latency-wait", "5", "--jobs", "4",
+                        "--slurm-init-seconds-before-status-checks", "6", "--latency-wait", "5", "--jobs", "4",
                         "--retries", "0", "--omit-from", "report_pages", "--slurm-logdir", str(tmp_path / "slurm_logs"), "--verbose",
                         "--logger", "eve3d"],
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)

@@ -111,23 +111,19 @@ def camera_centres(scene) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.slow
-def test_exif_rotated_photos_give_the_poses_and_images_of_upright_ones(tmp_path):
+def test_exif_rotated_photos_give_the_poses_and_images_of_upright_ones(object_photos, object_photos_sfm, tmp_path):
     """The same 16 views stored upright and stored sideways with the EXIF tag register with
     the same poses and give the same training images. Stored losslessly (PNG with the tag),
     the import makes the two sets the same pixels, so single-threaded SfM (bit-reproducible)
     must give the same model to rounding; a JPEG set re-encodes differently, and a phone's
     JPEGs are exercised by ``eve3d bench real``."""
-    data = generate("object", tmp_path / "data", views=16, width=480, height=360, arc=120, images_only=True)
-    for name, rotate in (("upright", False), ("sideways", True)):
-        (tmp_path / name / "images").mkdir(parents=True)
-        for png in sorted((data / "images").glob("*.png")):
-            rgb = read_image(png)
-            path = tmp_path / name / "images" / png.name
-            save_sideways(rgb, path) if rotate else Image.fromarray(rgb).save(path)
-        r = run_cli("sfm", tmp_path / name, tmp_path / f"{name}-sfm")
-        assert r.returncode == 0, r.stderr[-2000:]
+    (tmp_path / "sideways" / "images").mkdir(parents=True)
+    for png in sorted((object_photos / "images").glob("*.png")):
+        save_sideways(read_image(png), tmp_path / "sideways" / "images" / png.name)
+    r = run_cli("sfm", tmp_path / "sideways", tmp_path / "sideways-sfm")
+    assert r.returncode == 0, r.stderr[-2000:]
     assert Image.open(tmp_path / "sideways/images/000.png").size == (360, 480)  # stored sideways
-    up, side = load_scene(tmp_path / "upright-sfm"), load_scene(tmp_path / "sideways-sfm")
+    up, side = load_scene(object_photos_sfm), load_scene(tmp_path / "sideways-sfm")
     assert [c.view_id for c in side.cameras] == [c.view_id for c in up.cameras] and len(up.cameras) == 16
     for cu, cs in zip(up.cameras, side.cameras):
         assert (cs.width, cs.height) == (cu.width, cu.height) and cs.width > cs.height  # upright
@@ -139,10 +135,10 @@ def test_exif_rotated_photos_give_the_poses_and_images_of_upright_ones(tmp_path)
 
 
 @pytest.mark.slow
-def test_sfm_skips_bad_files_and_gives_each_photo_size_a_camera(tmp_path):
+def test_sfm_skips_bad_files_and_gives_each_photo_size_a_camera(object_photos, tmp_path):
     """A note, a zero-byte JPEG and photos of two sizes: skipped with a warning naming each
     file, and a camera per size, never a traceback."""
-    data = generate("object", tmp_path / "data", views=16, width=480, height=360, arc=120, images_only=True)
+    data = shutil.copytree(object_photos, tmp_path / "data")
     for png in list((data / "images").glob("*.png"))[::3]:  # every third photo from a camera with fewer pixels
         Image.open(png).resize((400, 300), Image.LANCZOS).save(png)
     (data / "images" / "notes.txt").write_text("tripod, f/8")
@@ -158,13 +154,13 @@ def test_sfm_skips_bad_files_and_gives_each_photo_size_a_camera(tmp_path):
 
 
 @pytest.mark.slow
-def test_photos_and_their_path_run_to_meshes_and_held_out_scores(tmp_path):
+def test_photos_and_their_path_run_to_meshes_and_held_out_scores(object_photos, tmp_path):
     """An images-only scene with no other key: SfM, the default nvs protocol, meshes of every
     trained method with their shaded views, held-out views side by side with the photos."""
-    data = generate("object", tmp_path / "mine", views=16, width=480, height=360, arc=120, images_only=True)
+    data = shutil.copytree(object_photos, tmp_path / "mine")
     short = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
     cfg = write_config(tmp_path, methods=["oracle", "stereo-tsdf", "pgsr", "eve3d"],
-                       scenes={"mine": {"path": str(data)}},
+                       scenes={"mine": {"path": str(data)}}, train={"max_side": 240},  # trained at 240×180
                        pretrain={"iterations": 80, "reinit_at": [], "simplify_at": [60], "densify": short},
                        joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "prior_from": 5, "joint_from": 20,
                               "init_prior_points": 3000, "densify": short})
