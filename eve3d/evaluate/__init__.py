@@ -205,8 +205,8 @@ def run(settings: EvalSettings, min_confidence: float, *, scene: Path, out: Path
     chosen, loaded, gt = _inputs(scene, protocol, ground_truth)
     reconstruction = model if chosen.scores == "model" else mesh
     if reconstruction is None:
-        flag = "--model (a trained point_cloud.ply)" if chosen.scores == "model" else "--mesh"
-        raise Eve3dError(f"the {chosen.name} protocol scores a {chosen.scores}: give {flag}")
+        needed = "--model (a trained point_cloud.ply)" if chosen.scores == "model" else "--mesh"
+        raise Eve3dError(f"the {chosen.name} protocol scores a {chosen.scores}: give {needed}")
     if bool(depth) != bool(exact_depth):
         raise Eve3dError("--depth and --exact-depth go together: the maps the mesh fused, and the exact depth of "
                          "the same views")
