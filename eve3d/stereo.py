@@ -42,6 +42,20 @@ def _matcher(min_disparity: int, num_disparities: int, s: SgbmSettings):
                                  mode=getattr(cv2, SGM_MODES[s.sgm_mode]))
 
 
+def _right_matcher(sgbm):
+    """The matcher of the right image against the left: ximgproc's ``createRightMatcher`` where
+    opencv-contrib is installed, else the SGBM that contrib builds (the mirrored range, no
+    uniqueness or speckle filter), since a GPU machine may have plain OpenCV only."""
+    import cv2
+
+    if hasattr(cv2, "ximgproc"):
+        return cv2.ximgproc.createRightMatcher(sgbm)
+    return cv2.StereoSGBM_create(
+        minDisparity=-(sgbm.getMinDisparity() + sgbm.getNumDisparities()) + 1, numDisparities=sgbm.getNumDisparities(),
+        blockSize=sgbm.getBlockSize(), P1=sgbm.getP1(), P2=sgbm.getP2(), disp12MaxDiff=1000000,
+        preFilterCap=sgbm.getPreFilterCap(), uniquenessRatio=0, speckleWindowSize=0, mode=sgbm.getMode())
+
+
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
                    s: SgbmSettings | None = None, min_disparity: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Disparity of the left image (float32, px; 0 where invalid) and its confidence (float32
@@ -54,7 +68,7 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
     low = int(np.floor(max(min_disparity, 0)))
     num = int(np.ceil(max(max_disparity - low, 16) / 16.0)) * 16
     sgbm = _matcher(low, num, s)
-    right_matcher = cv2.ximgproc.createRightMatcher(sgbm)
+    right_matcher = _right_matcher(sgbm)
     raw_l, raw_r = sgbm.compute(left, right), right_matcher.compute(right, left)  # 1/16 px; right ≤ 0
     textured = local_std(left, s.block_size) >= s.min_texture
     if s.wls:
@@ -95,10 +109,10 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
     import torch
 
     from eve3d.gaussians.model import GaussianModel
-    from eve3d.gaussians.render import render_model
+    from eve3d.gaussians.render import model_device, render_model
 
     baseline, rendering = baseline or BaselineSettings(), rendering or RenderSettings()
-    model = GaussianModel.load_ply(model_path)
+    model = GaussianModel.load_ply(model_path).to(model_device(rendering))
     # the right views come out in the model's grey levels: the photos are matched through the same curve
     tone_path = Path(model_path).with_name(TONE_FILE)
     tone = json.loads(tone_path.read_text()) if tone_path.exists() else list(range(256))
@@ -108,7 +122,7 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
             scale = rendering.scale(full)
             cam = rendering.sized(full)
             out = render_model(model, cam, rendering)
-            depth = out.depth_expected[out.alpha > 0.5].numpy()
+            depth = out.depth_expected[out.alpha > 0.5].cpu().numpy()
             near, median, far = (np.percentile(depth, [1, 50, 99]) if len(depth)
                                  else np.array([0.1, 1.0, 10.0]) * scene.radius)
             b = baseline.of_view(cam, scene.radius, float(median))
@@ -116,8 +130,9 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
             margin = int(np.ceil(d_max)) + 16  # a matcher may round its range up (SGBM: to 16 px)
             right = render_model(model, margin_camera(right_camera(cam, b), margin), rendering)
             write_image(tmp / "right" / f"{cam.view_id}.png",
-                        (right.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
-            write_image(tmp / ALPHA_DIR / f"{cam.view_id}.png", (out.alpha.clamp(0, 1).numpy() * 255).round().astype(np.uint8))
+                        (right.rgb.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8))
+            write_image(tmp / ALPHA_DIR / f"{cam.view_id}.png",
+                        (out.alpha.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8))
             info["views"][cam.view_id] = {"scale": scale, "baseline": b, "min_disparity": float(np.floor(d_min)),
                                           "max_disparity": float(d_max), "margin": margin}
         (tmp / PAIRS_FILE).write_text(json.dumps(info, indent=2))

@@ -34,6 +34,20 @@ def test_sgbm_on_motorcycle_meets_the_bar():
     assert r["density"] >= 0.80 and r["bad2"] <= 8.0
 
 
+def test_the_right_matcher_without_contrib_is_contribs_bit_for_bit(monkeypatch):
+    import cv2
+    from skimage import data
+
+    from eve3d.stereo import _matcher, _right_matcher
+
+    left, right = (cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in data.stereo_motorcycle()[:2])
+    sgbm = _matcher(3, 128, SgbmSettings())
+    contribs = cv2.ximgproc.createRightMatcher(sgbm).compute(right, left)
+    monkeypatch.delattr(cv2, "ximgproc")  # as on a machine with plain OpenCV
+    ours = _right_matcher(sgbm).compute(right, left)
+    assert (contribs != 0).mean() > 0.5 and np.array_equal(ours, contribs)
+
+
 def test_sgbm_recovers_a_constant_disparity_and_rejects_flat_regions():
     left, right = shifted_pair(8)
     left[:, 90:] = right[:, 90:] = 0  # a flat black band: nothing to match

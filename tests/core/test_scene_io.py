@@ -1,5 +1,6 @@
 """Scene I/O: COLMAP round trips, DTU camera decomposition, format detection."""
 import shutil
+import sys
 
 import numpy as np
 import pytest
@@ -25,6 +26,15 @@ def test_colmap_round_trip_is_exact(object_scene, tmp_path, binary):
     assert np.array_equal(back.points, object_scene.points)
     assert np.array_equal(back.point_colors, object_scene.point_colors)
     assert all(np.array_equal(u, v) for u, v in zip(back.point_views, object_scene.point_views))
+
+
+def test_a_model_is_read_where_open3d_is_not_installed(object_scene, tmp_path, monkeypatch):
+    """The training stages read their scene on a GPU machine with pycolmap and no open3d."""
+    write_colmap(object_scene, tmp_path / "sparse")
+    monkeypatch.setitem(sys.modules, "open3d", None)  # `import open3d` now raises ImportError
+    back = read_colmap(tmp_path / "sparse", object_scene.root / "images")
+    assert [c.name for c in back.cameras] == [c.name for c in object_scene.cameras]
+    assert np.array_equal(back.points, object_scene.points)
 
 
 def test_dtu_world_mat_decomposes_and_recomposes():

@@ -6,7 +6,8 @@ import pytest
 import torch
 from PIL import Image
 
-from eve3d.gaussians.render import render
+from eve3d.core.settings import RenderSettings
+from eve3d.gaussians.render import model_device, render
 from eve3d.gaussians.render.projection import ALPHA_MIN, CameraTensors, project, quat_to_rotmat
 
 
@@ -295,6 +296,14 @@ def test_fitting_an_image_by_adam_exceeds_30_db(object_dataset):
     psnr = -10 * math.log10(((out.rgb.detach() - target) ** 2).mean().item())
     print(f"PSNR after 300 steps: {psnr:.2f} dB")
     assert psnr > 30
+
+
+def test_a_model_read_from_disk_goes_where_its_backend_renders():
+    """stereo-render reads the pretrained model from its PLY: gsplat renders it only on the GPU."""
+    assert model_device(RenderSettings(backend="cpu")).type == "cpu"
+    assert model_device(RenderSettings(backend="torch")).type == "cpu"
+    assert model_device(RenderSettings(backend="gsplat")).type == "cuda"
+    assert model_device(RenderSettings(backend="auto")).type == ("cuda" if torch.cuda.is_available() else "cpu")
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA and gsplat")

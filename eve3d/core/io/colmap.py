@@ -19,8 +19,12 @@ PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 
 def import_pycolmap():
     """pycolmap, imported after open3d. In the other order (pycolmap 4.2, open3d 0.20), the
-    first PNG or npz write after an open3d ray cast aborts in zlib's deflateEnd."""
-    import open3d  # noqa: F401
+    first PNG or npz write after an open3d ray cast aborts in zlib's deflateEnd. The training
+    stages read their scene on a GPU machine that may have pycolmap and not open3d."""
+    try:
+        import open3d  # noqa: F401
+    except ImportError:
+        pass
     import pycolmap
 
     return pycolmap
