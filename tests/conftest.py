@@ -7,6 +7,9 @@ if "PYTEST_XDIST_WORKER" in os.environ:
     # Two workers on two cores (make test): one thread each, set before torch starts. Two
     # workers of two threads each spin against each other (a gradcheck took 51 s, alone 2 s).
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    # OpenMP threads that wait sleep instead of spinning: a workflow job's own threads (its
+    # rule sets OMP_NUM_THREADS) then take no core from the other worker while they wait.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from eve3d.core.io import load_scene
 from eve3d.synth import generate
@@ -50,7 +53,7 @@ def object_photos(tmp_path_factory) -> Path:
     under gt/): a user's folder of photos, which SfM has to pose. Read only: a test that
     changes the photos copies them first."""
     return generate("object", tmp_path_factory.mktemp("photos") / "object", views=16, width=480, height=360, arc=120,
-                    images_only=True)
+                    images_only=True, surface_samples=TINY_START)  # the points go under gt/, unused
 
 
 @pytest.fixture(scope="session")

@@ -11,7 +11,7 @@ import yaml
 
 from eve3d.config import REPO, resolve_config
 from eve3d.core.io import load_scene
-from eve3d.core.layout import Layout
+from eve3d.core.layout import EVALUATION, RECORD, TRAINING, Layout
 from eve3d.core.scene import Eve3dError
 from eve3d.synth import generate
 from eve3d.tools.standin import STANDIN_SCENE, write_log, write_standin
@@ -210,7 +210,14 @@ def test_each_benchmark_runs_end_to_end(downloads, tmp_path, name):
             assert row["protocol"] == "tnt" and row["points"] == "vertices" and 0 <= float(row["fscore"]) <= 1
             assert metrics["tau"] == 0.01   # the toolbox's τ of Barn
         else:
-            assert row["protocol"] == "nvs" and float(row["psnr"]) > 10
+            assert row["protocol"] == "nvs" and float(row["psnr"]) > 10 and row["depth_signed_error"] == ""
+            # every 8th view held out (views 0 and 8 of 12); the protocol renders the saved
+            # model, and agrees with the trainer's own held-out score
+            training = json.loads(layout.train_metrics(scene, row["method"]).read_text())
+            assert metrics[RECORD] == EVALUATION and training[RECORD] == TRAINING
+            assert training["settings"]["holdout"] == 8 and metrics["views"] == 2
+            assert metrics["psnr"] == pytest.approx(training["held_out"]["psnr"], abs=1e-3)
+            assert float(row["psnr"]) == pytest.approx(metrics["psnr"])
         assert layout.mesh(scene, row["method"]).is_file()
     if name in ("dtu", "tnt"):
         check = json.loads(layout.ground_truth_check(scene).read_text())
