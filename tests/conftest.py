@@ -7,9 +7,6 @@ if "PYTEST_XDIST_WORKER" in os.environ:
     # Two workers on two cores (make test): one thread each, set before torch starts. Two
     # workers of two threads each spin against each other (a gradcheck took 51 s, alone 2 s).
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    # OpenMP threads that wait sleep instead of spinning: a workflow job's own threads (its
-    # rule sets OMP_NUM_THREADS) then take no core from the other worker while they wait.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from eve3d.core.io import load_scene
 from eve3d.synth import generate
