@@ -109,7 +109,8 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
     import torch
 
     from eve3d.gaussians.model import GaussianModel
-    from eve3d.gaussians.render import model_device, render_model
+    from eve3d.gaussians.render import render_model
+    from eve3d.gaussians.views import model_device
 
     baseline, rendering = baseline or BaselineSettings(), rendering or RenderSettings()
     model = GaussianModel.load_ply(model_path).to(model_device(rendering))

@@ -42,6 +42,12 @@ def pick_device(setting: str) -> torch.device:
     return torch.device("cuda" if want_cuda else "cpu")
 
 
+def model_device(rendering: RenderSettings) -> torch.device:
+    """Where a model read from disk goes to be rendered as ``rendering`` says: the GPU for
+    ``gsplat``, and for ``auto`` where there is one (``auto`` then picks gsplat); else the CPU."""
+    return pick_device({"gsplat": "cuda", "auto": "auto"}.get(rendering.backend, "cpu"))
+
+
 def load_views(scene: Scene, rendering: RenderSettings, device: torch.device,
                tone: np.ndarray | None = None) -> list[View]:
     """Every camera of ``scene`` at the training size (``rendering.sized``) with its photo

@@ -7,8 +7,9 @@ import torch
 from PIL import Image
 
 from eve3d.core.settings import RenderSettings
-from eve3d.gaussians.render import model_device, render
+from eve3d.gaussians.render import render
 from eve3d.gaussians.render.projection import ALPHA_MIN, CameraTensors, project, quat_to_rotmat
+from eve3d.gaussians.views import model_device
 
 
 def camera(width=24, height=18, dtype=torch.float64, tilt=0.0):

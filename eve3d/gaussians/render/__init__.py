@@ -183,13 +183,6 @@ def render_model(model: GaussianModel, camera: Camera | CameraTensors, rendering
                   backend=rendering.backend, antialiased=rendering.antialiased, **kw)
 
 
-def model_device(rendering: RenderSettings) -> torch.device:
-    """Where a model read from disk goes to be rendered as ``rendering`` says: the GPU for
-    ``gsplat``, and for ``auto`` where there is one (``auto`` then picks gsplat); else the CPU."""
-    cuda = rendering.backend == "gsplat" or (rendering.backend == "auto" and torch.cuda.is_available())
-    return torch.device("cuda" if cuda else "cpu")
-
-
 def _auto_backend(means: torch.Tensor) -> str:
     if means.is_cuda:
         try:
