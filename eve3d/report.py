@@ -163,19 +163,39 @@ def runtimes_chart(rows: list[dict], out: Path) -> None:
     _save(fig, out, dpi=100, bbox_inches="tight")
 
 
-def _error_map(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """The points and colours of an error map (``precision.ply`` / ``recall.ply``: points
-    coloured by distance, already thinned by ``evaluate.common.write_error_maps``), or None
-    when it is empty."""
+ERROR_MAP_PIXELS = 240
+"""Longest side, in pixels, of an error map's picture on a scene sheet."""
+ERROR_MAP_BACKGROUND = (0.8, 0.8, 0.88)
+"""Where no scored point falls: a light blue grey, off the white–black scale."""
+
+
+def _error_map(path: Path) -> np.ndarray | None:
+    """An error map (``precision.ply`` / ``recall.ply``: points coloured by distance, already
+    thinned by ``evaluate.common.write_error_maps``) seen from above, along −z: an RGB image
+    in which each pixel takes the colour of its highest point; None when the map is empty.
+    Drawn as an image rather than as 200,000 matplotlib markers, which took 0.45 s a panel."""
     import open3d as o3d
 
     cloud = o3d.io.read_point_cloud(str(path))
     points, colours = np.asarray(cloud.points), np.asarray(cloud.colors)
-    return (points, colours) if len(points) else None
+    if not len(points):
+        return None
+    low, extent = points[:, :2].min(0), np.ptp(points[:, :2], axis=0)
+    scale = (ERROR_MAP_PIXELS - 1) / max(extent.max(), 1e-12)
+    width, height = (np.floor(extent * scale).astype(int) + 1)
+    col, row = np.floor((points[:, :2] - low) * scale).astype(int).T
+    row = height - 1 - row  # +y up, as on a plot
+    pixel = row * width + col
+    order = np.lexsort((-points[:, 2], pixel))  # by pixel, the highest point first
+    first = order[np.r_[True, pixel[order][1:] != pixel[order][:-1]]]
+    image = np.empty((height * width, 3))
+    image[:] = ERROR_MAP_BACKGROUND
+    image[pixel[first]] = colours[first]
+    return image.reshape(height, width, 3)
 
 
 def scene_panels(layout: Layout, scene: str, method: str, photo: Path | None, backend: str) -> list[tuple[str, object]]:
-    """(title, image path or error-map points) of one scene and method, those that exist."""
+    """(title, image path or error-map image) of one scene and method, those that exist."""
     folder = layout.method(scene, method)
     candidates = []
     if photo is not None:  # the maps of the photo's view
@@ -192,9 +212,9 @@ def scene_panels(layout: Layout, scene: str, method: str, photo: Path | None, ba
         panels.append(("held out: render | photo", held[0]))
     for name in ("precision", "recall"):
         if (folder / f"{name}.ply").is_file():
-            cloud = _error_map(folder / f"{name}.ply")
-            if cloud is not None:
-                panels.append((f"{name} errors (white 0, black ≥ 3τ; DTU 10 mm), along z", cloud))
+            image = _error_map(folder / f"{name}.ply")
+            if image is not None:
+                panels.append((f"{name} errors (white 0, black ≥ 3τ; DTU 10 mm), along z", image))
     return panels
 
 
@@ -208,13 +228,7 @@ def scene_sheet(panels: list[tuple[str, object]], title: str, out: Path) -> None
     for ax in axes.ravel():
         ax.axis("off")
     for ax, (name, item) in zip(axes.ravel(), panels):
-        if isinstance(item, tuple):
-            points, colours = item
-            ax.scatter(points[:, 0], points[:, 1], c=colours, s=0.3, linewidths=0)
-            ax.set_facecolor("#88a")
-            ax.set_aspect("equal")
-        else:
-            ax.imshow(read_image(Path(item)))
+        ax.imshow(item if isinstance(item, np.ndarray) else read_image(Path(item)))
         ax.set_title(name, fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()

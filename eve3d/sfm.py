@@ -69,7 +69,9 @@ def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
     match = pycolmap.match_exhaustive if s.matcher == "exhaustive" else pycolmap.match_sequential
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = s.threads
-    match(str(db), matching_options=matching, device=pycolmap.Device.cpu)
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.max_num_trials = s.ransac_trials
+    match(str(db), matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
     options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = s.seed
     options.num_threads = s.threads

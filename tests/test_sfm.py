@@ -26,7 +26,7 @@ def test_sfm_registers_every_view_and_recovers_the_poses(tmp_path):
     s, R, t = similarity_fit(E, G)
     err = np.linalg.norm(s * E @ R.T + t - G, axis=1) / truth.radius
     print(f"camera centre error / scene radius: max {err.max():.4f}, mean {err.mean():.4f}")
-    # Single-threaded (the default), SfM is bit-reproducible: measured max 0.49 %, mean 0.19 %.
+    # Single-threaded (the default), SfM is bit-reproducible: measured max 0.65 %, mean 0.25 %.
     assert err.max() < 0.01
 
 
