@@ -14,7 +14,7 @@ import shutil
 from pathlib import Path
 
 from eve3d.core.fileio import atomic_dir
-from eve3d.core.io.colmap import find_colmap_model, import_pycolmap
+from eve3d.core.io.colmap import find_colmap_model, import_pycolmap, match_features
 from eve3d.core.io.loader import METADATA
 from eve3d.core.photos import import_photos, scan_photos, write_pyramid
 from eve3d.core.scene import Eve3dError
@@ -66,12 +66,7 @@ def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
     pycolmap.extract_features(str(db), str(image_dir), image_names=names,
                               camera_mode=pycolmap.CameraMode.PER_FOLDER if s.single_camera else pycolmap.CameraMode.AUTO,
                               reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-    match = pycolmap.match_exhaustive if s.matcher == "exhaustive" else pycolmap.match_sequential
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = s.threads
-    verification = pycolmap.TwoViewGeometryOptions()
-    verification.ransac.max_num_trials = s.ransac_trials
-    match(str(db), matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
+    match_features(db, s)
     options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = s.seed
     options.num_threads = s.threads

@@ -79,10 +79,10 @@ class SfmSettings(Checked):
     seed: int = 0
     """Random seed of the mapper."""
     ransac_trials: int = setting(2000, ge=100)
-    """Most RANSAC trials of the two-view check of each matched pair (COLMAP: 10,000). Pairs
-    that do not overlap spend them all: 94 of the 100 s of exhaustive matching on 32 views
-    around an object. A pair with 30 % inliers is still verified 99 % of the time
-    (docs/results.md, "SfM")."""
+    """Most RANSAC trials of the two-view check of each matched pair (COLMAP: 10,000), in SfM
+    and in the generator's triangulation. Pairs that do not overlap spend them all: 94 of the
+    100 s of exhaustive matching on 32 views around an object. A pair with 30 % inliers is
+    still verified 99 % of the time (docs/results.md, "SfM")."""
     threads: int = setting(1, nonzero=True)
     """Threads for extraction, matching and mapping. 1 makes SfM bit-reproducible (pycolmap's
     multi-threaded matching and mapping are not: the worst camera moved by 0.5 % of the scene

@@ -292,6 +292,19 @@ def write_colmap(scene: Scene, out_dir: Path, binary: bool = True) -> None:
     (rec.write_binary if binary else rec.write_text)(str(out_dir))
 
 
+def match_features(db_path: Path, s: SfmSettings) -> None:
+    """Match the features in the database ``db_path`` (``s.matcher``) and verify each pair's
+    two-view geometry (at most ``s.ransac_trials`` RANSAC trials), on ``s.threads`` threads."""
+    pycolmap = import_pycolmap()
+
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = s.threads
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.max_num_trials = s.ransac_trials
+    match = pycolmap.match_exhaustive if s.matcher == "exhaustive" else pycolmap.match_sequential
+    match(str(db_path), matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
+
+
 def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, s: SfmSettings | None = None
                             ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """Sparse points as SfM gives them to a user whose poses are known (DTU, a generated
@@ -313,10 +326,7 @@ def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, 
     pycolmap.set_random_seed(s.seed)
     pycolmap.extract_features(str(db_path), str(image_dir), image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
                               reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = s.threads
-    match = pycolmap.match_exhaustive if s.matcher == "exhaustive" else pycolmap.match_sequential
-    match(str(db_path), matching_options=matching, device=pycolmap.Device.cpu)
+    match_features(db_path, s)
     # the database's own ids, with our intrinsics and poses: the triangulator pairs them by id
     index = {name: i for i, name in enumerate(names)}
     known = pycolmap.Reconstruction()
