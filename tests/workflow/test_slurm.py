@@ -11,6 +11,7 @@ import shlex
 import shutil
 import socket
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -81,7 +82,10 @@ def slurm_cluster(tmp_path_factory):
     shim.parent.mkdir()
     shim.write_text(f"#!/bin/sh\nSLURM_CONF={root}/slurm.conf exec {shutil.which('srun')} \"$@\"\n")
     shim.chmod(0o755)
-    env = {**os.environ, "SLURM_CONF": str(root / "slurm.conf"), "PATH": f"{shim.parent}{os.pathsep}{os.environ['PATH']}"}
+    # This interpreter's folder next: `snakemake` and the jobs' `python` are this environment's
+    # (make test does not put it on PATH; an earlier test that built the C++ rasteriser did).
+    path = os.pathsep.join([str(shim.parent), str(Path(sys.executable).parent), os.environ["PATH"]])
+    env = {**os.environ, "SLURM_CONF": str(root / "slurm.conf"), "PATH": path}
     commands = [
         ["munged", "--foreground", "--force", f"--socket={root}/munge.socket", f"--key-file={key}",
          f"--pid-file={root}/munged.pid", f"--seed-file={root}/munged.seed", f"--log-file={root}/munged.log"],
@@ -140,6 +144,7 @@ def profile_requests(rule: str, profile: dict) -> dict[str, str]:
 
 
 @pytest.mark.slow
+@pytest.mark.waits
 def test_tiny_scene_runs_through_the_slurm_profile(slurm_cluster, tmp_path):
     """Every stage kind, on short schedules, through sbatch and srun: the results are
     complete, each job asked for the profile's time, memory and cores in the site's
