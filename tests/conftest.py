@@ -14,22 +14,10 @@ from tests.helpers import TINY_START, run_cli
 
 
 def pytest_collection_modifyitems(items):
-    """Each of two workers (``make test``, xdist's worksteal) runs one half of this list in
-    order, then takes tests from the end of the other's. The first half starts with the tests
-    that mostly wait (the Slurm run), then the slow ones that run in this process on one
-    thread (SfM, scoring); the second half starts with the workflow runs, whose jobs keep both
-    cores busy beside them. The short tests fill both halves and end the run. Measured: the
-    Slurm run beside single-threaded SfM left a core idle for 70 s."""
-    def marked(item, name):
-        return item.get_closest_marker(name) is not None
-
-    waits = [item for item in items if marked(item, "waits")]
-    workflow = [item for item in items if marked(item, "workflow") and not marked(item, "waits")]
-    alone = [item for item in items if marked(item, "slow") and item not in waits and item not in workflow]
-    short = [item for item in items if not marked(item, "slow")]
-    first = waits + alone
-    fill = max(0, len(items) // 2 - len(first))
-    items[:] = first + short[:fill] + workflow + short[fill:]
+    """The tests marked slow first (each keeps its place among them): on two workers
+    (``make test``) the long ones then start early on both, and the many short ones fill in
+    around them instead of leaving one worker idle at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(scope="session")

@@ -151,7 +151,6 @@ def _digests(root: Path) -> dict[str, str]:
 
 
 @pytest.mark.slow
-@pytest.mark.workflow
 def test_killed_training_reruns_to_the_same_result(tmp_path):
     """A training job killed with SIGKILL in the middle of the workflow, then the workflow
     rerun: the same Gaussians, mesh scores and depth as an uninterrupted run (one thread, the

@@ -154,7 +154,6 @@ def test_sfm_skips_bad_files_and_gives_each_photo_size_a_camera(object_photos, t
 
 
 @pytest.mark.slow
-@pytest.mark.workflow
 def test_photos_and_their_path_run_to_meshes_and_held_out_scores(object_photos, tmp_path):
     """An images-only scene with no other key: SfM, the default nvs protocol, meshes of every
     trained method with their shaded views, held-out views side by side with the photos."""

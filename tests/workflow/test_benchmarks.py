@@ -189,7 +189,6 @@ def test_a_wrong_trajectory_stops_before_training(downloads, object_views, tmp_p
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(MINIATURE))
-@pytest.mark.workflow
 def test_each_benchmark_runs_end_to_end(downloads, tmp_path, name):
     """The benchmark's config, only the tiny schedule and the miniature's scene changed:
     every method to its score in summary.csv."""

@@ -144,7 +144,6 @@ def profile_requests(rule: str, profile: dict) -> dict[str, str]:
 
 
 @pytest.mark.slow
-@pytest.mark.waits
 def test_tiny_scene_runs_through_the_slurm_profile(slurm_cluster, tmp_path):
     """Every stage kind, on short schedules, through sbatch and srun: the results are
     complete, each job asked for the profile's time, memory and cores in the site's

@@ -120,7 +120,6 @@ def test_bad_training_key_is_named_before_any_job(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.workflow
 def test_tiny_training_run(tmp_path):
     """pretrain, stereo priors, stereo-tsdf, 3dgs, pgsr and eve3d through the workflow on a
     tiny scene with very short schedules. (The nvs protocol's run is the Mip-NeRF 360
@@ -197,7 +196,6 @@ def test_tiny_training_run(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.workflow
 def test_tiny_run_with_a_failed_scene_then_rerun_one_stage(tmp_path):
     """The oracle on the tiny scene beside a scene whose SfM fails (photos of noise): with
     --keep-going the tiny scene finishes, and the summary and the report list the failed one
@@ -263,7 +261,6 @@ def user_layout(tmp_path, kind: str, views: int = 24):
 
 
 @pytest.mark.slow
-@pytest.mark.workflow
 def test_oracle_scores_near_perfectly_on_scenes_brought_by_a_user(tmp_path):
     """An object beside a hollow vase (surfaces no camera sees) and a room seen from
     cameras clustered near its centre, as COLMAP text models with a separate GT mesh: the
