@@ -53,8 +53,8 @@ took an evaluate job there from 3.6 to 5.0 s, and F moved by 0.0001 (eve3d on th
 def write_config(tmp_path: Path, **overrides) -> Path:
     """A workflow config in ``tmp_path``: the cpu preset, results under ``tmp_path``, the
     oracle on a 12-view 160×120 generated object (``tiny``), keys overridden by ``overrides``.
-    Tiny scenes start from exact surface samples (``TINY_START``) and are scored on 100,000
-    samples a side (``EVAL_SAMPLES``)."""
+    Tiny scenes start from exact surface samples (``TINY_START``) and are scored on
+    ``EVAL_SAMPLES`` samples a side."""
     config = {"preset": "cpu", "results": str(tmp_path / "results"), "methods": ["oracle"],
               "scenes": {"tiny": {"synthetic": {"kind": "object", "views": 12, "width": 160, "height": 120}}},
               "synthetic": {"surface_samples": TINY_START},
