@@ -25,8 +25,9 @@ CLIENTS = ("sbatch", "squeue", "sinfo", "srun")
 
 
 def _slurm_conf(root: Path, host: str) -> str:
-    """One node, one partition, no accounting; the node says it has 16 cores, 64 GB and one
-    GPU (a count only, no device), so that the profile's requests fit and GPU jobs run."""
+    """One node, one partition, no accounting; the node says it has 32 cores, 128 GB and one
+    GPU (a count only, no device), so that the profile's requests fit side by side (a pretrain
+    and a joint ask 8 cores each) and GPU jobs run."""
     return f"""\
 ClusterName=eve3dtest
 SlurmctldHost={host}(127.0.0.1)
@@ -53,7 +54,7 @@ ReturnToService=2
 MpiDefault=none
 JobAcctGatherType=jobacct_gather/none
 AccountingStorageType=accounting_storage/none
-NodeName={host} NodeAddr=127.0.0.1 CPUs=16 RealMemory=64000 Gres=gpu:1 State=UNKNOWN
+NodeName={host} NodeAddr=127.0.0.1 CPUs=32 RealMemory=128000 Gres=gpu:1 State=UNKNOWN
 PartitionName=eve3dtest Nodes=ALL Default=YES MaxTime=INFINITE State=UP
 """
 
@@ -157,12 +158,13 @@ def test_tiny_scene_runs_through_the_slurm_profile(slurm_cluster, tmp_path):
                        # leave stereo-tsdf nothing to fuse, and this test is about the cluster
                        stereo={"min_alpha": 0.0})
     env = {**slurm_cluster, "EVE3D_SLURM_PARTITION": "eve3dtest", "EVE3D_SLURM_GPU_MODEL": ""}
-    # The plugin checks the first time after --slurm-init-seconds-before-status-checks and, while
-    # nothing has finished, 10 s later each time: 6 s lets most of these few-second jobs be seen
-    # done at the first check (at 1 s each stage waited 11 s).
+    # The plugin checks the first time after --slurm-init-seconds-before-status-checks and then,
+    # while nothing has finished, each time 10 s later than the last: a tiny job is done 8–10 s
+    # after its sbatch (two Snakemake starts inside), so at 12 s each stage waits 12 s (at 6 s,
+    # 6 + 16 = 22 s: the test took 188 s, at 12 s 125 s).
     r = subprocess.run(["snakemake", "-s", str(SNAKEFILE), "--profile", str(REPO / "profiles/slurm"),
                         "--configfile", str(cfg), "--replace-workflow-config", "--slurm-status-command", "squeue",
-                        "--slurm-init-seconds-before-status-checks", "6", "--latency-wait", "5", "--jobs", "4",
+                        "--slurm-init-seconds-before-status-checks", "12", "--latency-wait", "5", "--jobs", "4",
                         "--retries", "0", "--omit-from", "report_pages", "--slurm-logdir", str(tmp_path / "slurm_logs"), "--verbose",
                         "--logger", "eve3d"],
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
