@@ -1,4 +1,6 @@
+import fcntl
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -20,10 +22,29 @@ def pytest_collection_modifyitems(items):
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
+def made_once(tmp_path_factory, name: str, make: Callable[[Path], Path]) -> Path:
+    """``make(folder)``, once per test run: the two workers of ``make test`` (pytest-xdist) each
+    hold their own session fixtures, so the first to ask makes the folder under their shared
+    base and the other waits for it rather than making its own (the object scene took 17–23 s
+    on each)."""
+    base = tmp_path_factory.getbasetemp()
+    if "PYTEST_XDIST_WORKER" in os.environ:
+        base = base.parent  # one folder per worker, beside each other
+    folder, stem = base / name, base / name.replace("/", "-")
+    done = stem.with_suffix(".done")
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    with open(stem.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            make(folder)
+            done.touch()
+    return folder
+
+
 @pytest.fixture(scope="session")
 def object_dataset(tmp_path_factory) -> Path:
     """The embedded default object scene at the CPU preset's size (320×240, 32 views)."""
-    return generate("object", tmp_path_factory.mktemp("data") / "object")
+    return made_once(tmp_path_factory, "data/object", lambda out: generate("object", out))
 
 
 @pytest.fixture(scope="session")
@@ -35,8 +56,8 @@ def object_scene(object_dataset):
 def tiny_dataset(tmp_path_factory) -> Path:
     """An 8-view 64×48 object scene: small enough for training tests; it starts from exact
     surface samples (``TINY_START``: SIFT finds nothing to match at this size)."""
-    return generate("object", tmp_path_factory.mktemp("tiny") / "object", views=8, width=64, height=48,
-                    surface_samples=TINY_START)
+    return made_once(tmp_path_factory, "tiny/object", lambda out: generate("object", out, views=8, width=64, height=48,
+                                                                     surface_samples=TINY_START))
 
 
 @pytest.fixture(scope="session")
@@ -49,8 +70,9 @@ def object_photos(tmp_path_factory) -> Path:
     """16 photos of the object from a 120° arc at 480×360, images only (the poses hidden
     under gt/): a user's folder of photos, which SfM has to pose. Read only: a test that
     changes the photos copies them first."""
-    return generate("object", tmp_path_factory.mktemp("photos") / "object", views=16, width=480, height=360, arc=120,
-                    images_only=True, surface_samples=TINY_START)  # the points go under gt/, unused
+    return made_once(tmp_path_factory, "photos/object", lambda out: generate(
+        "object", out, views=16, width=480, height=360, arc=120, images_only=True,
+        surface_samples=TINY_START))  # the points go under gt/, unused
 
 
 @pytest.fixture(scope="session")

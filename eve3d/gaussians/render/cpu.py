@@ -25,14 +25,16 @@ from eve3d.gaussians.render.projection import CameraTensors, Projected
 SOURCES = [Path(__file__).parent / "csrc" / name for name in ("rasterize.cpp", "projection.cpp", "roundtrip.cpp", "losses.cpp")]
 
 
-def cpu_tag() -> str:
-    """A short hash of this CPU's model and instruction sets. The extension is compiled for
-    the machine it runs on (``-march=native`` on x86-64: 7–12 % faster compositing than the generic
-    x86-64 build), so a build cache shared between machines (a cluster's home folder) keeps
-    one build per kind of CPU rather than loading one that another CPU cannot execute."""
+def build_tag() -> str:
+    """A short hash of this CPU's model and instruction sets and of this checkout's folder. The
+    extension is compiled for the machine it runs on (``-march=native`` on x86-64: 7–12 % faster
+    compositing than the generic x86-64 build), so a build cache shared between machines (a
+    cluster's home folder) keeps one build per kind of CPU rather than loading one that another
+    CPU cannot execute; and one per checkout, since torch rebuilds when the sources' paths
+    change (two clones sharing one build rebuilt each other's, 2 min each time)."""
     import hashlib
 
-    ident = platform.machine() + platform.processor()
+    ident = str(Path(__file__).parent) + platform.machine() + platform.processor()
     try:
         lines = Path("/proc/cpuinfo").read_text().splitlines()
         ident += "".join(sorted({ln for ln in lines if ln.startswith(("model name", "flags", "Features"))}))
@@ -50,7 +52,7 @@ def extension():
     os.environ["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
     print("eve3d: loading the C++ rasteriser (compiled once, about 40 s, then cached)", file=sys.stderr)
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") else []
-    return load(name=f"eve3d_rasterize_{cpu_tag()}", sources=[str(p) for p in SOURCES],
+    return load(name=f"eve3d_rasterize_{build_tag()}", sources=[str(p) for p in SOURCES],
                 extra_cflags=["-O3", *native, "-fno-trapping-math", "-fopenmp"], extra_ldflags=["-fopenmp"], verbose=False)
 
 
