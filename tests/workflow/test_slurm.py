@@ -25,9 +25,9 @@ CLIENTS = ("sbatch", "squeue", "sinfo", "srun")
 
 
 def _slurm_conf(root: Path, host: str) -> str:
-    """One node, one partition, no accounting; the node says it has 32 cores, 128 GB and one
-    GPU (a count only, no device), so that the profile's requests fit side by side (a pretrain
-    and a joint ask 8 cores each) and GPU jobs run."""
+    """One node, one partition, no accounting; the node says it has 32 cores, 128 GB and two
+    GPUs (a count only, no device), so that GPU jobs run and the profile's requests fit side
+    by side: the pretrain and pgsr's joint each ask for 8 cores and a GPU."""
     return f"""\
 ClusterName=eve3dtest
 SlurmctldHost={host}(127.0.0.1)
@@ -54,7 +54,7 @@ ReturnToService=2
 MpiDefault=none
 JobAcctGatherType=jobacct_gather/none
 AccountingStorageType=accounting_storage/none
-NodeName={host} NodeAddr=127.0.0.1 CPUs=32 RealMemory=128000 Gres=gpu:1 State=UNKNOWN
+NodeName={host} NodeAddr=127.0.0.1 CPUs=32 RealMemory=128000 Gres=gpu:2 State=UNKNOWN
 PartitionName=eve3dtest Nodes=ALL Default=YES MaxTime=INFINITE State=UP
 """
 
@@ -76,7 +76,7 @@ def slurm_cluster(tmp_path_factory):
     key.chmod(0o400)
     host = socket.gethostname().split(".")[0]  # slurmd names its node by the short host name
     (root / "slurm.conf").write_text(_slurm_conf(root, host))
-    (root / "gres.conf").write_text(f"AutoDetect=off\nNodeName={host} Name=gpu File=/dev/null\n")
+    (root / "gres.conf").write_text(f"AutoDetect=off\nNodeName={host} Name=gpu File=/dev/null\nNodeName={host} Name=gpu File=/dev/zero\n")
     # The jobstep plugin drops SLURM_* from the environment of the srun inside each job,
     # which then looks for /etc/slurm/slurm.conf: a shim first on PATH gives it this one.
     shim = root / "bin" / "srun"
