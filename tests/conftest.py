@@ -6,8 +6,8 @@ from pathlib import Path
 import pytest
 
 if "PYTEST_XDIST_WORKER" in os.environ:
-    # Two workers on two cores (make test): one thread each, set before torch starts. Two
-    # workers of two threads each spin against each other (a gradcheck took 51 s, alone 2 s).
+    # make test's workers (three on two cores): one thread each, set before torch starts. Two
+    # workers of two threads each spun against each other (a gradcheck took 51 s, alone 2 s).
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from eve3d.core.io import load_scene
@@ -16,16 +16,16 @@ from tests.helpers import TINY_START, run_cli
 
 
 def pytest_collection_modifyitems(items):
-    """The tests marked slow first (each keeps its place among them): on two workers
-    (``make test``) the long ones then start early on both, and the many short ones fill in
-    around them instead of leaving one worker idle at the end."""
+    """The tests marked slow first (each keeps its place among them): under ``make test``'s
+    workers the long ones then start early on each, and the many short ones fill in around
+    them instead of leaving a worker idle at the end."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 def made_once(tmp_path_factory, name: str, make: Callable[[Path], Path]) -> Path:
-    """``make(folder)``, once per test run: the two workers of ``make test`` (pytest-xdist) each
+    """``make(folder)``, once per test run: the workers of ``make test`` (pytest-xdist) each
     hold their own session fixtures, so the first to ask makes the folder under their shared
-    base and the other waits for it rather than making its own (the object scene took 17–23 s
+    base and the others wait for it rather than making their own (the object scene took 17–23 s
     on each)."""
     base = tmp_path_factory.getbasetemp()
     if "PYTEST_XDIST_WORKER" in os.environ:
