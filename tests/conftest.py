@@ -26,18 +26,16 @@ def made_once(tmp_path_factory, name: str, make: Callable[[Path], Path]) -> Path
     """``make(folder)``, once per test run: the workers of ``make test`` (pytest-xdist) each
     hold their own session fixtures, so the first to ask makes the folder under their shared
     base and the others wait for it rather than making their own (the object scene took 17–23 s
-    on each)."""
+    on each). ``make`` writes the folder atomically (``generate`` does), so it exists only whole."""
     base = tmp_path_factory.getbasetemp()
     if "PYTEST_XDIST_WORKER" in os.environ:
-        base = base.parent  # one folder per worker, beside each other
-    folder, stem = base / name, base / name.replace("/", "-")
-    done = stem.with_suffix(".done")
+        base = base.parent  # the workers' own folders lie side by side in it
+    folder = base / name
     folder.parent.mkdir(parents=True, exist_ok=True)
-    with open(stem.with_suffix(".lock"), "w") as lock:
+    with open(base / f"{name.replace('/', '-')}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        if not done.exists():
+        if not folder.exists():
             make(folder)
-            done.touch()
     return folder
 
 
