@@ -17,7 +17,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg
 
 from eve3d.core.fileio import check_image, list_images
 from eve3d.core.scene import Camera, Eve3dError, Scene
@@ -25,6 +24,8 @@ from eve3d.core.scene import Camera, Eve3dError, Scene
 
 def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """3×4 projection (any scale) → K (K[2,2] = 1, positive focal lengths), R, t."""
+    import scipy.linalg  # here, not above: every command reads scenes, few read DTU's (0.25 s a start)
+
     P = np.asarray(P, dtype=np.float64)[:3, :4]
     if np.linalg.det(P[:, :3]) < 0:  # the overall scale of P may be negative
         P = -P
