@@ -159,7 +159,8 @@ def test_photos_and_their_path_run_to_meshes_and_held_out_scores(object_photos, 
     trained method with their shaded views, held-out views side by side with the photos."""
     data = shutil.copytree(object_photos, tmp_path / "mine")
     short = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
-    # pgsr left out: it trains by eve3d's code (its runs end to end: tests/workflow/test_workflow.py)
+    # pgsr left out: eve3d is pgsr with the priors and an opacity loss; pgsr's runs end to end
+    # are tests/workflow/test_workflow.py's and tests/test_pipeline.py's
     cfg = write_config(tmp_path, methods=["oracle", "stereo-tsdf", "eve3d"],
                        scenes={"mine": {"path": str(data)}}, train={"max_side": 240},  # trained at 240×180
                        pretrain={"iterations": 80, "reinit_at": [], "simplify_at": [60], "densify": short},
