@@ -1,6 +1,5 @@
 """Tanks and Temples protocol: scoring against a brute-force reference, the full alignment
 on a synthetic T&T layout with known frames, and its input errors."""
-import json
 
 import numpy as np
 import pytest
