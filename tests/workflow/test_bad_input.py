@@ -187,7 +187,7 @@ def test_negative_iterations(tiny_dataset, tmp_path, capsys):
     expected = "iterations: expected an integer ≥ 0, got -5"
     fails(capsys, *args, "--set", "pretrain.iterations=-5", expect=(f"pretrain (train + pretrain sections).{expected}",))
     fails(capsys, *args, "--iterations", "-5", expect=("pretrain (train + pretrain sections).iterations (--iterations): "
-                                                       f"expected an integer ≥ 0, got -5",))
+                                                       "expected an integer ≥ 0, got -5",))
     fails(capsys, *args, "--config", '{"pretrain": {"iterations": -5}}', expect=(expected,))
     # the preset's pretrain.iterations shadows train.iterations: -5 there was never read, and passed
     fails(capsys, *args, "--set", "train.iterations=-5", expect=(f"train.{expected}",))
