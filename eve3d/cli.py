@@ -323,7 +323,8 @@ def _add_data_parsers(sub) -> None:
 
 
 def _add_stereo_parsers(sub) -> None:
-    from eve3d.core.settings import BaselineSettings, MatchCheck, RenderSettings, SgbmSettings, StereoSettings
+    from eve3d.core.settings import (PRIOR_BACKENDS, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings,
+                                     StereoSettings)
 
     s = _stage(sub, "stereo-render", _cmd_stereo_render,
                "right views of virtual stereo pairs, rendered by the pretrained model",
@@ -335,8 +336,9 @@ def _add_stereo_parsers(sub) -> None:
                (StereoSettings, "stereo", ("backend",)), (SgbmSettings, "stereo"), (MatchCheck, "stereo"))
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--out", required=True, help="output folder (replaced atomically)")
-    s.add_argument("--gt-mesh", help="oracle: the mesh (default: the scene's own GT mesh)")
-    s.add_argument("--stereo", help="sgbm, mccnn, onnx: the output folder of `eve3d stereo-render`")
+    by_input = lambda reads: ", ".join(b.name for b in PRIOR_BACKENDS.values() if b.reads == reads)  # noqa: E731
+    s.add_argument("--gt-mesh", help=f"{by_input('gt_mesh')}: the mesh (default: the scene's own GT mesh)")
+    s.add_argument("--stereo", help=f"{by_input('pairs')}: the output folder of `eve3d stereo-render`")
     s.add_argument("--no-preview", action="store_true")
     s = sub.add_parser("export-stereo", help="export a stereo network to ONNX for the onnx backend and print its "
                                              "stereo.onnx config")

@@ -1,5 +1,6 @@
-"""Virtual stereo: right cameras, and the ``sgbm`` disparity backend with its left–right check
-and optional WLS filtering (opencv-contrib's ``ximgproc``).
+"""Virtual stereo: the right cameras and views (``stereo_render``), and the depth priors of a
+backend (``stereo_depth``; the backends live in ``eve3d.priors``, declared in
+``PRIOR_BACKENDS``) with the confidence checks every backend passes through.
 
 The right camera of a view has the same rotation and intrinsics, its centre moved by the
 baseline B along the camera's own x axis, so a point at depth Z appears d = fx·B/Z pixels
@@ -7,6 +8,7 @@ further left in the right image (x_right = x_left − d) and Z = fx·B/d.
 """
 from __future__ import annotations
 
+import importlib
 import json
 from collections.abc import Callable
 from dataclasses import asdict, replace
@@ -21,68 +23,14 @@ from eve3d.core.layout import TONE_FILE  # written by the pretrain beside its PL
 from eve3d.core.maps import save_maps
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Eve3dError, Scene
-from eve3d.core.settings import SGM_MODES, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings, StereoSettings
+from eve3d.core.settings import PRIOR_BACKENDS, BaselineSettings, MatchCheck, RenderSettings, StereoSettings
 from eve3d.core.settings_fields import pick
 from eve3d.gaussians.neighbours import select_neighbours
-from eve3d.priors.matching import left_right_consistent, local_std
 
 
 def right_camera(cam: Camera, baseline: float) -> Camera:
     """``cam`` moved by ``baseline`` along its x axis (same R and K): t_r = t − (B, 0, 0)."""
     return replace(cam, t=cam.t - np.array([baseline, 0.0, 0.0]), image_path=None, mask_path=None)
-
-
-def _matcher(min_disparity: int, num_disparities: int, s: SgbmSettings):
-    import cv2
-
-    b = s.block_size
-    return cv2.StereoSGBM_create(minDisparity=min_disparity, numDisparities=num_disparities, blockSize=b, P1=8 * 3 * b * b,
-                                 P2=32 * 3 * b * b, disp12MaxDiff=-1, uniquenessRatio=s.uniqueness,
-                                 speckleWindowSize=s.speckle_window, speckleRange=s.speckle_range,
-                                 mode=getattr(cv2, SGM_MODES[s.sgm_mode]))
-
-
-def _right_matcher(sgbm):
-    """The matcher of the right image against the left: ximgproc's ``createRightMatcher`` where
-    opencv-contrib is installed, else the SGBM that contrib builds (the mirrored range, no
-    uniqueness or speckle filter), since a GPU machine may have plain OpenCV only."""
-    import cv2
-
-    if hasattr(cv2, "ximgproc"):
-        return cv2.ximgproc.createRightMatcher(sgbm)
-    return cv2.StereoSGBM_create(
-        minDisparity=-(sgbm.getMinDisparity() + sgbm.getNumDisparities()) + 1, numDisparities=sgbm.getNumDisparities(),
-        blockSize=sgbm.getBlockSize(), P1=sgbm.getP1(), P2=sgbm.getP2(), disp12MaxDiff=1000000,
-        preFilterCap=sgbm.getPreFilterCap(), uniquenessRatio=0, speckleWindowSize=0, mode=sgbm.getMode())
-
-
-def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
-                   s: SgbmSettings | None = None, min_disparity: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Disparity of the left image (float32, px; 0 where invalid) and its confidence (float32
-    in [0, 1]): the left–right check against ximgproc's right matcher, or the WLS filter's
-    confidence map, in both cases gated by texture. Searched from ``min_disparity`` to at
-    least ``max_disparity`` (the range rounded up to a multiple of 16 px)."""
-    import cv2
-
-    s = s or SgbmSettings()
-    low = int(np.floor(max(min_disparity, 0)))
-    num = int(np.ceil(max(max_disparity - low, 16) / 16.0)) * 16
-    sgbm = _matcher(low, num, s)
-    right_matcher = _right_matcher(sgbm)
-    raw_l, raw_r = sgbm.compute(left, right), right_matcher.compute(right, left)  # 1/16 px; right ≤ 0
-    textured = local_std(left, s.block_size) >= s.min_texture
-    if s.wls:
-        wls = cv2.ximgproc.createDisparityWLSFilter(sgbm)
-        wls.setLambda(s.wls_lambda)
-        wls.setSigmaColor(s.wls_sigma)
-        disp = wls.filter(raw_l, left, disparity_map_right=raw_r).astype(np.float32) / 16.0
-        confidence = wls.getConfidenceMap().astype(np.float32) / 255.0
-    else:
-        # Invalid pixels hold minDisparity − 1 (in 1/16 px), which is positive once the range starts above 1.
-        in_range = lambda raw: np.where((raw >= 16 * low) & (raw < 16 * (low + num)), raw / 16.0, 0)  # noqa: E731
-        disp = in_range(raw_l.astype(np.float32))
-        confidence = left_right_consistent(disp, in_range(-raw_r.astype(np.float32)), s.lr_threshold)
-    return np.maximum(disp, 0).astype(np.float32), np.where(textured & (disp > 0), confidence, 0).astype(np.float32)
 
 
 PAIRS_FILE = "pairs.json"
@@ -312,13 +260,6 @@ def left_alpha(stereo_dir: Path, cam: Camera) -> np.ndarray:
     return alpha
 
 
-def sgbm_priors(scene: Scene, stereo_dir: Path, out_dir: Path, settings: SgbmSettings | None = None,
-                preview: bool = True, check: MatchCheck | None = None) -> None:
-    """``stereo_depth --backend sgbm``."""
-    stereo_priors(scene, stereo_dir, out_dir, lambda l, r, search: sgbm_disparity(l, r, search[1], settings, search[0]),
-                  "SGBM", preview, check)
-
-
 def run_render(settings: StereoSettings, rendering: RenderSettings, *, scene: Path, model: Path, out: Path) -> None:
     """The ``stereo_render`` stage: right views of ``scene`` rendered by the pretrained ``model``
     (``rendering``: as it was trained) into ``out``."""
@@ -332,31 +273,20 @@ def run_render(settings: StereoSettings, rendering: RenderSettings, *, scene: Pa
 def run_depth(settings: StereoSettings, *, scene: Path, out: Path, stereo: Path | None = None,
               gt_mesh: Path | None = None, preview: bool = True) -> None:
     """The ``stereo_depth`` stage: ``settings.backend``'s depth priors of ``scene`` into
-    ``out``, from the right views in ``stereo`` (the oracle: from ``gt_mesh``, else the
-    scene's own)."""
+    ``out`` (the backend's row in ``PRIOR_BACKENDS`` says where it lives and what it reads):
+    from the right views in ``stereo``, or from ``gt_mesh`` (else the scene's own)."""
     from eve3d.core.io import load_scene
 
-    loaded, s, out = load_scene(scene), settings, Path(out)
-    check = pick(MatchCheck, s)
-    if s.backend == "oracle":
-        from eve3d.priors.oracle import oracle_priors
-
-        oracle_priors(loaded, out, Path(gt_mesh) if gt_mesh else None, preview=preview)
-    elif not stereo:
-        raise Eve3dError(f"--backend {s.backend} needs --stereo (the output folder of `eve3d stereo-render`)")
-    elif s.backend == "sgbm":
-        sgbm_priors(loaded, Path(stereo), out, pick(SgbmSettings, s), preview=preview, check=check)
-    elif s.backend == "mccnn":
-        from eve3d.priors.mccnn import MccnnStereo
-
-        stereo_priors(loaded, Path(stereo), out, MccnnStereo(s.mccnn, s.min_texture, s.block_size), "MC-CNN",
-                      preview=preview, check=check)
+    backend = PRIOR_BACKENDS[settings.backend]
+    loaded, out = load_scene(scene), Path(out)
+    if backend.reads == "pairs" and not stereo:
+        raise Eve3dError(f"--backend {backend.name} needs --stereo (the output folder of `eve3d stereo-render`)")
+    module = importlib.import_module(backend.module)
+    if backend.reads == "gt_mesh":
+        module.priors_from_mesh(loaded, out, Path(gt_mesh) if gt_mesh else None, preview=preview)
     else:
-        from eve3d.priors.onnx import OnnxStereo
-
-        if not s.onnx.model:
-            raise Eve3dError("--backend onnx needs the model spec: stereo.onnx in --config, or --set stereo.onnx.model=FILE")
-        stereo_priors(loaded, Path(stereo), out, OnnxStereo(s.onnx), "ONNX stereo", preview=preview, check=check)
+        stereo_priors(loaded, Path(stereo), out, module.matcher(settings), backend.label, preview=preview,
+                      check=pick(MatchCheck, settings))
     print(f"wrote {len(loaded.cameras)} depth maps to {out}")
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -81,6 +82,21 @@ def joint_settings(**kw):
 
 # -- stereo ----------------------------------------------------------------------------------
 
+HITNET_DIR = Path(os.environ.get("EVE3D_HITNET_DIR", REPO.parent / "shared" / "models" / "hitnet_eth3d"))
+"""HITNet's ONNX exports (data, never in the repository): the shared models folder beside the
+checkout, or ``$EVE3D_HITNET_DIR``. The tests that run the network read it from here only."""
+
+
+def hitnet_model(size: str) -> Path:
+    """HITNet's export at ``size`` (``HxW``); the test is skipped where it is not on the machine."""
+    import pytest
+
+    path = HITNET_DIR / f"hitnet_eth3d_{size}.onnx"
+    if not path.is_file():
+        pytest.skip(f"{path}: HITNet's weights are not on this machine (set EVE3D_HITNET_DIR)")
+    return path
+
+
 def shifted_pair(disparity: int, h: int = 96, w: int = 128, grain: int = 4):
     """A textured pair with a constant disparity: random values upsampled ``grain`` times."""
     import cv2
@@ -89,6 +105,45 @@ def shifted_pair(disparity: int, h: int = 96, w: int = 128, grain: int = 4):
     tex = cv2.resize(rng.integers(0, 255, (h // grain, (w + disparity) // grain, 3)).astype(np.uint8),
                      (w + disparity, h), interpolation=cv2.INTER_CUBIC)
     return np.ascontiguousarray(tex[:, :w]), np.ascontiguousarray(tex[:, disparity:])  # x_right = x_left − d
+
+
+def dim(image: np.ndarray) -> np.ndarray:
+    """A dark, low-contrast copy: 0–255 squeezed into 20–25 (a dim wall's texture)."""
+    return (20 + image.astype(np.float32) * 5 / 255).round().astype(np.uint8)
+
+
+def sgbm_priors(scene, stereo_dir: Path, out: Path, preview: bool = True, check=None) -> None:
+    """``stereo_depth --backend sgbm`` with the default settings and ``check``."""
+    from eve3d.priors.sgbm import SgbmStereo
+    from eve3d.stereo import stereo_priors
+
+    stereo_priors(scene, stereo_dir, out, SgbmStereo(), "SGBM", preview=preview, check=check)
+
+
+def plane_pair(tilt_deg: float, disparity: float, margin: int = 48) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The ``plane`` kind's textured plane 2 units in front of a camera, turned by
+    ``tilt_deg`` about the camera's x axis (depth changing from top to bottom), and its exact right view (ray-cast, 2×2
+    supersampled, as the photos are) with a baseline giving ``disparity`` px at 2 units.
+    Returns left, right (``margin`` columns wider), exact depth, fx and the baseline."""
+    from eve3d.core.raycast import MeshRaycaster
+    from eve3d.core.scene import Camera
+    from eve3d.stereo import margin_camera, right_camera
+    from eve3d.synth import KINDS, shade
+
+    W, H = 320, 240
+    f = 1.1 * W
+    cam = Camera("a.png", W, H, np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]]), np.eye(3), np.zeros(3))
+    a = np.radians(tilt_deg)
+    rot = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    parts = KINDS["plane"].parts()
+    mesh = parts[0].mesh
+    mesh.vertices = type(mesh.vertices)(np.asarray(mesh.vertices) @ rot.T + [0, 0, 2.0])
+    caster = MeshRaycaster([mesh])
+    baseline = disparity * 2.0 / f
+    supersample = np.stack(np.meshgrid([0.25, 0.75], [0.25, 0.75]), -1).reshape(-1, 2)
+    image = lambda c: np.clip(shade(parts, caster.cast(c, supersample), 0).mean(0) * 255 + 0.5, 0, 255).astype(np.uint8)  # noqa: E731
+    right = image(margin_camera(right_camera(cam, baseline), margin))
+    return image(cam), right, caster.cast(cam).depth, f, baseline
 
 
 def stereo_scene(tmp_path: Path, disparity: int, baseline: float = 0.5):

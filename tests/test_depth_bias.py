@@ -4,15 +4,12 @@ import pytest
 import torch
 
 from eve3d.core.maps import save_maps
-from eve3d.core.raycast import MeshRaycaster
-from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import SgbmSettings
 from eve3d.evaluate.depth import depth_accuracy
-from eve3d.stereo import margin_camera, right_camera, sgbm_disparity
-from eve3d.synth import KINDS, shade
+from eve3d.priors.sgbm import sgbm_disparity
+from tests.helpers import plane_pair
 
-W, H = 320, 240
-SUPERSAMPLE = np.stack(np.meshgrid([0.25, 0.75], [0.25, 0.75]), -1).reshape(-1, 2)
 
 
 def test_depth_accuracy_signs_the_error(tmp_path):
@@ -73,25 +70,6 @@ def test_depth_accuracy_on_weak_texture(tmp_path):
         depth_accuracy(tmp_path / "maps", tmp_path / "exact", images=tmp_path)
 
 
-def plane_pair(tilt_deg: float, disparity: float, margin: int = 48) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-    """The ``plane`` kind's textured plane 2 units in front of a camera, turned by
-    ``tilt_deg`` about the camera's x axis (depth changing from top to bottom), and its exact right view (ray-cast, 2×2
-    supersampled, as the photos are) with a baseline giving ``disparity`` px at 2 units.
-    Returns left, right (``margin`` columns wider), exact depth, fx and the baseline."""
-    f = 1.1 * W
-    cam = Camera("a.png", W, H, np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]]), np.eye(3), np.zeros(3))
-    a = np.radians(tilt_deg)
-    rot = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-    parts = KINDS["plane"].parts()
-    mesh = parts[0].mesh
-    mesh.vertices = type(mesh.vertices)(np.asarray(mesh.vertices) @ rot.T + [0, 0, 2.0])
-    caster = MeshRaycaster([mesh])
-    baseline = disparity * 2.0 / f
-    image = lambda c: np.clip(shade(parts, caster.cast(c, SUPERSAMPLE), 0).mean(0) * 255 + 0.5, 0, 255).astype(np.uint8)  # noqa: E731
-    right = image(margin_camera(right_camera(cam, baseline), margin))
-    return image(cam), right, caster.cast(cam).depth, f, baseline
-
-
 def sgbm_depth(left, right, f, baseline, settings=None, margin: int = 48):
     padded = np.pad(left, ((0, 0), (margin, 0), (0, 0)))
     disp, confidence = (m[:, margin:] for m in sgbm_disparity(padded, right, 64, settings))
@@ -136,10 +114,10 @@ def plane_dataset(tmp_path_factory):
     from eve3d.synth import generate
 
     from eve3d.core.io import load_scene
-    from eve3d.priors.oracle import oracle_priors
+    from eve3d.priors.oracle import priors_from_mesh
 
     dataset = generate("plane", tmp_path_factory.mktemp("plane") / "plane", views=12, width=160, height=120)
-    oracle_priors(load_scene(dataset), dataset.parent / "exact", preview=False)  # its exact depth, once
+    priors_from_mesh(load_scene(dataset), dataset.parent / "exact", preview=False)  # its exact depth, once
     return dataset
 
 

@@ -18,7 +18,7 @@ from eve3d.gaussians.training import Trainer
 from eve3d.gaussians.views import View
 from eve3d.joint import multiview_terms, prior_plane, setup_joint, train_joint
 from eve3d.priors.learnable import resample_prior
-from eve3d.priors.oracle import oracle_priors
+from eve3d.priors.oracle import priors_from_mesh
 from tests.helpers import joint_settings, run_cli
 
 
@@ -146,7 +146,7 @@ def noisy_priors(tiny_scene, tmp_path_factory) -> Path:
     """Oracle depth with a 3% multiplicative error on a band of rows and 2% noise, the band
     confident (a prior that is confident and wrong), a quarter of pixels unconfident."""
     exact = tmp_path_factory.mktemp("priors") / "oracle"
-    oracle_priors(tiny_scene, exact, preview=False)
+    priors_from_mesh(tiny_scene, exact, preview=False)
     noisy = exact.parent / "noisy"
     noisy.mkdir()
     rng = np.random.default_rng(0)

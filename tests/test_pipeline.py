@@ -91,10 +91,10 @@ def test_fusion_allocates_exactly_the_blocks_it_fuses_a_slab_at_a_time(kind, tmp
     from eve3d import mesh as meshing
     from eve3d.core.io import load_scene
     from eve3d.core.settings import MeshSettings
-    from eve3d.priors.oracle import oracle_priors
+    from eve3d.priors.oracle import priors_from_mesh
 
     scene = load_scene(generate(kind, tmp_path / kind, views=8, width=96, height=72))
-    oracle_priors(scene, tmp_path / "depth", preview=False)
+    priors_from_mesh(scene, tmp_path / "depth", preview=False)
     made, make, count = [], meshing._grid, meshing.count_blocks
 
     def recorded(voxel, blocks):
@@ -130,10 +130,10 @@ def test_fusion_past_what_open3d_extracts_is_refused_before_fusing(tiny_dataset,
     from eve3d.core.io import load_scene
     from eve3d.core.scene import Eve3dError
     from eve3d.core.settings import MeshSettings
-    from eve3d.priors.oracle import oracle_priors
+    from eve3d.priors.oracle import priors_from_mesh
 
     scene = load_scene(tiny_dataset)
-    oracle_priors(scene, tmp_path / "depth", preview=False)
+    priors_from_mesh(scene, tmp_path / "depth", preview=False)
     made, make = [], meshing._grid
     monkeypatch.setattr(meshing, "_grid", lambda voxel, blocks: made.append(blocks) or make(voxel, blocks))
     monkeypatch.setattr(meshing, "MAX_BLOCKS", 10)

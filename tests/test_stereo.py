@@ -1,4 +1,4 @@
-"""Virtual stereo: right cameras, SGBM with its left–right check, depth from disparity."""
+"""Virtual stereo: right cameras and views, the confidence checks every backend passes through, depth from disparity."""
 import json
 
 import numpy as np
@@ -6,13 +6,12 @@ import pytest
 
 from eve3d.core.maps import load_maps, preview_image
 from eve3d.core.scene import Camera, Eve3dError, Scene
-from eve3d.core.settings import BaselineSettings, MatchCheck, SgbmSettings
-from eve3d.tools.bench.stereo import stereo_motorcycle
-from tests.helpers import shifted_pair, stereo_scene
+from eve3d.core.settings import BaselineSettings, MatchCheck
+from tests.helpers import dim, sgbm_priors, shifted_pair, stereo_scene
 from eve3d.core.photos import equalizing_curve
 from eve3d.priors.matching import local_std
-from eve3d.stereo import (PAIRS_FILE, checked_confidence, render_right_views, right_camera, sgbm_disparity,
-                          sgbm_priors)
+from eve3d.priors.sgbm import sgbm_disparity
+from eve3d.stereo import PAIRS_FILE, checked_confidence, render_right_views, right_camera
 
 
 def test_right_camera_gives_disparity_fx_b_over_z():
@@ -26,60 +25,6 @@ def test_right_camera_gives_disparity_fx_b_over_z():
     points = np.random.default_rng(0).normal(size=(50, 3)) + left.center + 4 * left.R[2]
     (uv_l, z), (uv_r, _) = left.project(points), right.project(points)
     assert np.allclose(uv_l[:, 0] - uv_r[:, 0], 300 * 0.25 / z) and np.allclose(uv_l[:, 1], uv_r[:, 1])
-
-
-def test_sgbm_on_motorcycle_meets_the_bar():
-    r = stereo_motorcycle()
-    print(r)
-    assert r["density"] >= 0.80 and r["bad2"] <= 8.0
-
-
-def test_the_right_matcher_without_contrib_is_contribs_bit_for_bit(monkeypatch):
-    import cv2
-    from skimage import data
-
-    from eve3d.stereo import _matcher, _right_matcher
-
-    left, right = (cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in data.stereo_motorcycle()[:2])
-    sgbm = _matcher(3, 128, SgbmSettings())
-    contribs = cv2.ximgproc.createRightMatcher(sgbm).compute(right, left)
-    monkeypatch.delattr(cv2, "ximgproc")  # as on a machine with plain OpenCV
-    ours = _right_matcher(sgbm).compute(right, left)
-    assert (contribs != 0).mean() > 0.5 and np.array_equal(ours, contribs)
-
-
-def test_sgbm_recovers_a_constant_disparity_and_rejects_flat_regions():
-    left, right = shifted_pair(8)
-    left[:, 90:] = right[:, 90:] = 0  # a flat black band: nothing to match
-    disp, confidence = sgbm_disparity(left, right, 32)
-    core = confidence[:, 40:80] >= 0.5
-    assert core.mean() > 0.9 and np.allclose(disp[:, 40:80][core], 8, atol=0.1)
-    assert not confidence[:, 100:].any()
-
-
-def dim(image: np.ndarray) -> np.ndarray:
-    """A dark, low-contrast copy: 0–255 squeezed into 20–25 (a dim wall's texture)."""
-    return (20 + image.astype(np.float32) * 5 / 255).round().astype(np.uint8)
-
-
-def test_an_equalizing_curve_lets_sgbm_match_a_dim_faint_texture():
-    """A dim pair beside a bright one: plain SGBM is confident on little of the dim part;
-    through one equalisation curve for both images it is confident almost everywhere there,
-    at the true disparity, and the black band stays unconfident. The curve keeps 0 at 0,
-    never decreases, and stretches a grey level by about ``clip`` at most."""
-    left, right = shifted_pair(8)
-    left[:, :72], right[:, :72] = dim(left[:, :72]), dim(right[:, :72])
-    left[:, 100:] = right[:, 100:] = 0
-    plain = sgbm_disparity(left, right, 32)[1][:, 36:68] >= 0.5  # SGBM leaves the first 32 columns empty
-    curve = equalizing_curve((left, right), 5)
-    disp, confidence = sgbm_disparity(curve[left], curve[right], 32)
-    core = confidence[:, 36:68] >= 0.5
-    print(f"dim part confident: plain {plain.mean():.3f}, equalised {core.mean():.3f}")
-    assert plain.mean() < 0.5 and core.mean() > 0.9
-    assert np.mean(np.abs(disp[:, 36:68][core] - 8) <= 0.5) > 0.98
-    assert not confidence[:, 108:].any()
-    steps = np.diff(curve.astype(int))
-    assert curve[0] == 0 and curve[-1] == 255 and (steps >= 0).all() and steps.max() <= 6
 
 
 def test_sgbm_priors_match_the_photo_through_the_pretrains_tone_curve(tmp_path):
@@ -114,19 +59,6 @@ def test_pretrain_equalize_out_of_range_is_named():
 
     with pytest.raises(Eve3dError, match="pretrain.equalize"):
         PretrainSettings(equalize=0.5)
-
-
-def test_wls_fills_the_disparity_and_keeps_it():
-    """WLS gives a value to pixels that the left–right check rejects, keeps the constant
-    disparity where it is confident, and its confidence still ignores the flat band."""
-    left, right = shifted_pair(8)
-    left[:, 90:] = right[:, 90:] = 0
-    raw, raw_conf = sgbm_disparity(left, right, 32)
-    disp, confidence = sgbm_disparity(left, right, 32, SgbmSettings(wls=True))
-    core = confidence[:, 40:80] >= 0.5
-    assert core.mean() > 0.9 and np.allclose(disp[:, 40:80][core], 8, atol=0.1)
-    assert (disp[:, :90] > 0).mean() > (raw[:, :90] > 0).mean()
-    assert not confidence[:, 100:].any() and 0 <= confidence.min() and confidence.max() <= 1
 
 
 def test_sgbm_priors_write_depth_fx_b_over_d(tmp_path):

@@ -30,12 +30,44 @@ warn and go on, or the check is skipped."""
 TNT_POINTS = ("vertices", "sampled")
 """What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
 official toolbox reads a mesh PLY, or the vertices plus area samples."""
-PRIOR_BACKEND_DEVICES = {"sgbm": "cpu", "mccnn": "cpu", "onnx": "gpu", "oracle": "cpu"}
-"""Sources of the stereo priors (``stereo.backend``): OpenCV's SGBM on the virtual pairs,
-MC-CNN's learned matching costs with SGM, a stereo network exported to ONNX, or the exact
-depth of a scene with a known mesh; each with
-the device its job asks a cluster for (a network runs on the CUDA provider)."""
-PRIOR_BACKENDS = tuple(PRIOR_BACKEND_DEVICES)
+
+
+@dataclass(frozen=True)
+class PriorBackend:
+    """A source of the stereo priors (``stereo.backend``): one row of :data:`PRIOR_BACKENDS`."""
+
+    name: str
+    module: str
+    """Where it lives. A backend that reads the virtual stereo pairs has ``matcher(settings)``
+    there (the ``stereo`` settings in, ``matcher(left, right, (min, max))`` → disparity and
+    confidence out, for :func:`eve3d.stereo.stereo_priors`); one that reads the GT mesh has
+    ``priors_from_mesh(scene, out, mesh, preview)``."""
+    device: str
+    """What its cluster job asks for: ``cpu``, or ``gpu`` for a network (onnxruntime's CUDA
+    provider where it has one; the CPU otherwise)."""
+    label: str
+    """Its name on the progress bar."""
+    summary: str
+    reads: str = "pairs"
+    """``pairs``: the virtual stereo pairs of ``stereo-render``; ``gt_mesh``: the scene's GT mesh."""
+
+
+PRIOR_BACKENDS: dict[str, PriorBackend] = {b.name: b for b in (
+    PriorBackend("sgbm", "eve3d.priors.sgbm", "cpu", "SGBM",
+                 "OpenCV's semi-global block matching, left–right checked and gated by texture (no weights)"),
+    PriorBackend("mccnn", "eve3d.priors.mccnn", "cpu", "MC-CNN",
+                 "MC-CNN fast's learned matching costs (the mccnn wheel's Middlebury weights) with SGM"),
+    PriorBackend("onnx", "eve3d.priors.onnx", "gpu", "ONNX stereo",
+                 "any stereo network exported to ONNX, described by stereo.onnx (PSMNet: eve3d export-stereo)"),
+    PriorBackend("hitnet", "eve3d.priors.hitnet", "gpu", "HITNet",
+                 "HITNet's ONNX export, run by the path in stereo.hitnet.model (the ETH3D weights)"),
+    PriorBackend("oracle", "eve3d.priors.oracle", "cpu", "oracle depth",
+                 "the exact depth of a scene with a GT mesh, by ray casting (an upper bound)", reads="gt_mesh"),
+)}
+"""Every source of the stereo priors, declared once: the stage, the workflow (a job's device
+and inputs), the CLI's help and the config check read it. A new backend is its module in
+``eve3d/priors/`` and a row here (and, if it takes options, a settings class below and its
+field on :class:`StereoSettings`)."""
 
 
 # --------------------------------------------------------------------------- data
@@ -502,17 +534,34 @@ class MccnnSettings(Checked):
 
 
 @dataclass
+class HitnetSettings(Checked):
+    """HITNet exported to ONNX at a fixed input size (the ``stereo.hitnet`` mapping;
+    ``eve3d.priors.hitnet``)."""
+
+    SECTION: ClassVar[str] = "stereo.hitnet"
+    model: str = ""
+    """Path of the .onnx file (``hitnet_eth3d_HxW.onnx``: the file fixes the size each pair is resized to)."""
+    max_disparity: float = setting(120.0, gt=0)
+    """Largest disparity the network handles, in px at its input size (a shifted-texture
+    pair fails from 150 px): a pair whose search range is wider is told in a warning."""
+    lr_threshold: float = setting(1.0, gt=0)
+    """Left–right check tolerance, in px at the pair's size."""
+
+
+@dataclass
 class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck):
     """The ``stereo`` section: the prior source, the virtual baseline, SGBM's settings and
     the confidence checks (each stage reads its part with :func:`pick`)."""
 
     SECTION: ClassVar[str] = "stereo"
-    backend: str = setting("sgbm", choices=PRIOR_BACKENDS)
+    backend: str = setting("sgbm", choices=tuple(PRIOR_BACKENDS))
     """Priors that ``stereo-tsdf`` and the prior methods use (``PRIOR_BACKENDS``)."""
     onnx: OnnxSpec = setting(factory=OnnxSpec)
     """The ``onnx`` backend's model spec."""
     mccnn: MccnnSettings = setting(factory=MccnnSettings)
     """The ``mccnn`` backend's settings."""
+    hitnet: HitnetSettings = setting(factory=HitnetSettings)
+    """The ``hitnet`` backend's settings."""
 
 
 # --------------------------------------------------------------------------- mesh and evaluation

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import MccnnSettings
+from eve3d.core.settings import MccnnSettings, StereoSettings
 from eve3d.priors.matching import left_right_consistent, local_std
 
 PATCH = 11
@@ -110,6 +110,11 @@ class MccnnStereo:
         ok = left_right_consistent(disp_l, disp_r, self.s.lr_threshold)
         ok &= local_std(left, self.texture_window) >= self.min_texture
         return disp_l, ok.astype(np.float32)
+
+
+def matcher(settings: StereoSettings) -> MccnnStereo:
+    """The ``mccnn`` row of :data:`eve3d.core.settings.PRIOR_BACKENDS`: ``sgbm``'s texture gate."""
+    return MccnnStereo(settings.mccnn, settings.min_texture, settings.block_size)
 
 
 def winner(total) -> np.ndarray:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import OnnxSpec
+from eve3d.core.settings import OnnxSpec, StereoSettings
 from eve3d.priors.matching import left_right_consistent, mirrored
 
 
@@ -100,3 +100,10 @@ class OnnxStereo:
         disp_r = mirrored(self.disparity, left, right)
         disp_l = np.where(disp_l > 0, disp_l, 0).astype(np.float32)
         return disp_l, left_right_consistent(disp_l, np.maximum(disp_r, 0), self.spec.lr_threshold)
+
+
+def matcher(settings: StereoSettings) -> OnnxStereo:
+    """The ``onnx`` row of :data:`eve3d.core.settings.PRIOR_BACKENDS`."""
+    if not settings.onnx.model:
+        raise Eve3dError("--backend onnx needs the model spec: stereo.onnx in --config, or --set stereo.onnx.model=FILE")
+    return OnnxStereo(settings.onnx)

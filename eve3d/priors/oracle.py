@@ -13,7 +13,7 @@ from eve3d.core.raycast import MeshRaycaster
 from eve3d.core.scene import Eve3dError, Scene
 
 
-def oracle_priors(scene: Scene, out_dir: Path, mesh: Path | None = None, preview: bool = True) -> None:
+def priors_from_mesh(scene: Scene, out_dir: Path, mesh: Path | None = None, preview: bool = True) -> None:
     """Write ``{view}.npz`` (depth, confidence = 1 where the ray hits, camera-space normal)."""
     mesh = mesh or scene.gt_mesh
     if mesh is None:

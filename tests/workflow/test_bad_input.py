@@ -245,6 +245,10 @@ def test_malformed_onnx_model(tiny_dataset, tmp_path, capsys):
     fails(capsys, *args, "--set", f"stereo.onnx.model={junk}", expect=(f"{junk}: not a loadable ONNX model (",))
     fails(capsys, *args, "--set", f"stereo.onnx.model={tmp_path / 'none.onnx'}",
           expect=(f"{tmp_path / 'none.onnx'}: ONNX stereo model not found (stereo.onnx.model)",))
+    hitnet = ("stereo-depth", "--scene", tiny_dataset, "--backend", "hitnet", "--stereo", tmp_path / "stereo", "--out", out)
+    fails(capsys, *hitnet, expect=("--backend hitnet needs the model file: set stereo.hitnet.model", "stereodemo"))
+    fails(capsys, *hitnet, "--set", f"stereo.hitnet.model={junk}",
+          expect=(f"{junk}: not a loadable ONNX model (", "expected HITNet: one input 'input' float32 [1, 2, H, W]"))
     intact()
 
 

@@ -10,11 +10,11 @@ from eve3d.core.methods import methods
 from eve3d.core.settings import JointSettings, PretrainSettings
 from eve3d.joint import train_joint
 from eve3d.pretrain import pretrain
-from eve3d.priors.oracle import oracle_priors
-from eve3d.stereo import render_right_views, sgbm_priors
+from eve3d.priors.oracle import priors_from_mesh
+from eve3d.stereo import render_right_views
 from eve3d.synth import generate
 from eve3d.tools.bench.stereo import prior_accuracy
-from tests.helpers import TINY_START
+from tests.helpers import TINY_START, sgbm_priors
 
 # The cpu preset with both schedules cut from 1500 to 300 iterations: simplification and the
 # end of densification moved inside them; the prior terms, T_joint and the depth-normal and
@@ -53,7 +53,7 @@ def test_eve3d_final_priors_are_closer_to_the_exact_depth_than_the_sgbm_priors(t
     render_right_views(scene, tmp_path / "pretrain/point_cloud.ply", tmp_path / "stereo")
     star, oracle = tmp_path / "priors/sgbm", tmp_path / "priors/oracle"
     sgbm_priors(scene, tmp_path / "stereo", star, preview=False)
-    oracle_priors(scene, oracle, preview=False)
+    priors_from_mesh(scene, oracle, preview=False)
     eve3d = methods(config.get("variants"))["eve3d"]
     settings = stage_settings(JointSettings, "joint", config, overrides=eve3d.settings, method="eve3d")
     train_joint(scene, tmp_path / "eve3d", settings, star)

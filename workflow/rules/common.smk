@@ -13,7 +13,7 @@ from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_pr
 from eve3d.core.io.loader import has_poses
 from eve3d.core.layout import PRETRAIN, Layout
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import PRIOR_BACKEND_DEVICES, PretrainSettings, RenderSettings
+from eve3d.core.settings import PRIOR_BACKENDS, PretrainSettings, RenderSettings
 from eve3d.core.settings_fields import flag, pick
 
 try:
@@ -162,7 +162,7 @@ def depth_source(wildcards):
 
 def stereo_depth_inputs(wildcards):
     inputs = {"scene": posed_dataset(wildcards)}
-    if wildcards.backend == "oracle":
+    if PRIOR_BACKENDS[wildcards.backend].reads == "gt_mesh":
         inputs["gt"] = gt_input(wildcards)
     else:
         inputs["stereo"] = LAYOUT.stereo(wildcards.scene)
@@ -201,7 +201,7 @@ def render_job(scene):
 
 
 def stereo_depth_args(wildcards, input):
-    if wildcards.backend == "oracle":
+    if PRIOR_BACKENDS[wildcards.backend].reads == "gt_mesh":
         return f"--gt-mesh {gt_mesh(wildcards)}"
     return f"--stereo {input.stereo}"
 

@@ -30,7 +30,7 @@ rule stereo_depth:
     output:
         directory(LAYOUT.priors("{scene}", "{backend}")),
     wildcard_constraints:
-        backend="|".join(PRIOR_BACKEND_DEVICES),
+        backend="|".join(PRIOR_BACKENDS),
     params:
         args=stereo_depth_args,
         config=lambda wc: job_config("stereo"),
@@ -39,7 +39,7 @@ rule stereo_depth:
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_depth", "{backend}"),
     resources:
-        **device_resources(lambda wc: PRIOR_BACKEND_DEVICES[wc.backend]),
+        **device_resources(lambda wc: PRIOR_BACKENDS[wc.backend].device),
     conda:
         CONDA_ENV
     shell:

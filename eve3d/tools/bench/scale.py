@@ -129,14 +129,14 @@ def generate_with_depth(args: tuple) -> float:
     from pathlib import Path
 
     from eve3d.core.io import load_scene
-    from eve3d.priors.oracle import oracle_priors
+    from eve3d.priors.oracle import priors_from_mesh
     from eve3d.synth import generate
 
     kind, data, depth, views, (width, height), divisor = args
     generate(kind, Path(data), views=views, width=width // divisor, height=height // divisor, supersample=1,
              matcher="sequential")  # exhaustive matching of hundreds of views would dwarf the stages timed
     scene = load_scene(Path(data))
-    oracle_priors(replace(scene, cameras=[cam.scaled(width / cam.width) for cam in scene.cameras]), Path(depth),
+    priors_from_mesh(replace(scene, cameras=[cam.scaled(width / cam.width) for cam in scene.cameras]), Path(depth),
                   preview=False)
     return peak_rss_mb()
 

@@ -17,7 +17,7 @@ def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0, wls: bool 
     from skimage import data
 
     from eve3d.core.settings import SgbmSettings
-    from eve3d.stereo import sgbm_disparity
+    from eve3d.priors.sgbm import sgbm_disparity
 
     left, right, gt = data.stereo_motorcycle()
     known = np.isfinite(gt)

@@ -325,7 +325,7 @@ def bench_training(stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, war
     from eve3d.core.methods import uses_priors
     from eve3d.core.settings import SyntheticSettings
     from eve3d.core.settings_fields import from_mapping
-    from eve3d.priors.oracle import oracle_priors
+    from eve3d.priors.oracle import priors_from_mesh
     from eve3d.synth import generate
 
     config = job_config() if config is None else config
@@ -343,7 +343,7 @@ def bench_training(stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, war
         priors = None
         if any(stage != "pretrain" and uses_priors(asdict(s)) for stage, s in settings.items()):
             priors = Path(tmp) / "priors"
-            oracle_priors(load_scene(scene_dir), priors, preview=False)
+            priors_from_mesh(load_scene(scene_dir), priors, preview=False)
         rows = []
         with mock.patch.dict(os.environ, {"TQDM_DISABLE": "1"}):  # no progress bars in the children
             for stage in stages:
