@@ -9,13 +9,20 @@ JOBS ?= 2
 
 REPORT := results/report.html
 PSMNET := $(HOME)/.cache/eve3d/psmnet/pretrained_model_KITTI2015.tar
+# HITNet's ETH3D weights (data, never in the repository; docs/priors.md says where they come
+# from): the demo's priors are HITNet's where the file is found, else sgbm's.
+HITNET ?= $(firstword $(wildcard $(addsuffix /hitnet_eth3d_480x640.onnx,$(EVE3D_HITNET_DIR) \
+  $(HOME)/.cache/eve3d/hitnet ../shared/models/hitnet_eth3d)))
+comma := ,
+PRIORS := $(if $(HITNET),--config 'stereo={backend: hitnet$(comma) hitnet: {model: $(abspath $(HITNET))}}')
 
 demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print the table, write the report
-	$(BIN)/snakemake -c$(JOBS) --logger eve3d --omit-from summary
+	@echo $(if $(HITNET),"priors: HITNet ($(HITNET))","priors: sgbm. For HITNet's (docs/priors.md): hitnet_eth3d_480x640.onnx in ~/.cache/eve3d/hitnet/, or make demo HITNET=FILE")
+	$(BIN)/snakemake -c$(JOBS) --logger eve3d --omit-from summary $(PRIORS)
 	@# the workflow's summary rule prints the table of the results folder the config names;
 	@# rerun it alone (everything else is done) so that the table comes last
-	@$(BIN)/snakemake -c1 --quiet all --forcerun summary
-	@$(BIN)/snakemake -c1 --quiet all --report $(REPORT)
+	@$(BIN)/snakemake -c1 --quiet all --forcerun summary $(PRIORS)
+	@$(BIN)/snakemake -c1 --quiet all --report $(REPORT) $(PRIORS)
 	@echo "report: $(REPORT) (open it in a browser)"
 
 # One pytest-xdist worker more than cores: much of a workflow test is waiting (Slurm's status

@@ -91,7 +91,7 @@ def render_right_views(scene: Scene, model_path: Path, out_dir: Path, baseline: 
 def warped_ncc(left: np.ndarray, right: np.ndarray, disp: np.ndarray, margin: int = 0,
                window: int = 7) -> np.ndarray:
     """NCC, per pixel over ``window``×``window``, between the left image and the right image
-    sampled at each left pixel's match (x + margin − d, y). Flat windows score 0."""
+    sampled at each left pixel's match (x + margin − d, y) (:func:`_window_ncc`)."""
     import cv2
 
     h, w = disp.shape
@@ -129,15 +129,21 @@ def _grey(image: np.ndarray) -> np.ndarray:
     return (image.mean(-1) if image.ndim == 3 else image).astype(np.float32)
 
 
-def _window_ncc(a: np.ndarray, b: np.ndarray, window: int) -> np.ndarray:
-    """NCC of two images over every ``window``×``window`` window; flat windows score 0."""
+def _window_ncc(photo: np.ndarray, other: np.ndarray, window: int) -> np.ndarray:
+    """NCC of a photo and another image over every ``window``×``window`` window. A window
+    the photo has no texture in (``FLAT_STD``) can neither confirm nor refute a depth and
+    scores 1; a textured one against a flat one scores 0."""
     import cv2
 
+    from eve3d.gaussians.losses import FLAT_STD
+
     box = lambda x: cv2.blur(x, (window, window))  # noqa: E731
-    ma, mb = box(a), box(b)
-    cov = box(a * b) - ma * mb
-    va, vb = np.maximum(box(a * a) - ma * ma, 0), np.maximum(box(b * b) - mb * mb, 0)
-    return np.where((va > 1e-2) & (vb > 1e-2), cov / np.sqrt(va * vb + 1e-12), 0).astype(np.float32)
+    ma, mb = box(photo), box(other)
+    cov = box(photo * other) - ma * mb
+    va, vb = np.maximum(box(photo * photo) - ma * ma, 0), np.maximum(box(other * other) - mb * mb, 0)
+    flat = (FLAT_STD * 255) ** 2
+    ncc = np.where(vb > flat, cov / np.sqrt(va * vb + 1e-12), 0)
+    return np.where(va > flat, ncc, 1).astype(np.float32)
 
 
 def near_jump(disp: np.ndarray, valid: np.ndarray, jump: float, window: int) -> np.ndarray:
@@ -177,7 +183,16 @@ def checked_confidence(left: np.ndarray, right: np.ndarray, disp: np.ndarray, co
         ok &= ~near_jump(disp, (disp > 0) & (confidence > 0), check.jump, check.edge_window)
     if alpha is not None and check.min_alpha > 0:
         ok &= rendered_surface(alpha, check.min_alpha, check.edge_window)
+    if check.min_light > 0:
+        ok &= lit(left, check.min_light)
     return np.where(ok, confidence, 0).astype(np.float32)
+
+
+def lit(photo: np.ndarray, min_light: float) -> np.ndarray:
+    """Pixels whose 3×3 neighbourhood in ``photo`` has no grey level below ``min_light``."""
+    import cv2
+
+    return cv2.erode((_grey(photo) >= min_light).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
 
 
 def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,

@@ -82,19 +82,22 @@ def joint_settings(**kw):
 
 # -- stereo ----------------------------------------------------------------------------------
 
-HITNET_DIR = Path(os.environ.get("EVE3D_HITNET_DIR", REPO.parent / "shared" / "models" / "hitnet_eth3d"))
-"""HITNet's ONNX exports (data, never in the repository): the shared models folder beside the
-checkout, or ``$EVE3D_HITNET_DIR``. The tests that run the network read it from here only."""
+HITNET_DIRS = [Path(d) for d in (os.environ.get("EVE3D_HITNET_DIR"), Path.home() / ".cache/eve3d/hitnet",
+                                   REPO.parent / "shared/models/hitnet_eth3d") if d]
+"""Where HITNet's ONNX exports are looked for (data, never in the repository), as the Makefile
+looks for the demo's: ``$EVE3D_HITNET_DIR``, ``~/.cache/eve3d/hitnet``, the shared models
+folder beside the checkout. The tests that run the network read it from there only."""
 
 
 def hitnet_model(size: str) -> Path:
     """HITNet's export at ``size`` (``HxW``); the test is skipped where it is not on the machine."""
     import pytest
 
-    path = HITNET_DIR / f"hitnet_eth3d_{size}.onnx"
-    if not path.is_file():
-        pytest.skip(f"{path}: HITNet's weights are not on this machine (set EVE3D_HITNET_DIR)")
-    return path
+    name = f"hitnet_eth3d_{size}.onnx"
+    for folder in HITNET_DIRS:
+        if (folder / name).is_file():
+            return folder / name
+    pytest.skip(f"{name}: HITNet's weights are not on this machine (looked in {', '.join(map(str, HITNET_DIRS))})")
 
 
 def shifted_pair(disparity: int, h: int = 96, w: int = 128, grain: int = 4):

@@ -92,7 +92,8 @@ def test_a_silhouette_gives_the_empty_background_no_confident_depth():
     """A textured square on an empty black background: SGBM's window straddling its edge gives
     the background beside it the square's disparity (foreground fattening), and the
     left–right and NCC checks pass it. The jump check drops it, so does the pretrained
-    model's alpha (here exactly the square); what stays confident is right."""
+    model's alpha (here exactly the square), and so does the black background's lack of any
+    light; what stays confident is right."""
     left, right = shifted_pair(12, grain=2)
     square = np.zeros(left.shape[:2], bool)
     square[24:72, 40:100] = True
@@ -101,9 +102,9 @@ def test_a_silhouette_gives_the_empty_background_no_confident_depth():
     disp, conf = sgbm_disparity(left, right, 40)
     confident = lambda alpha=None, **check: checked_confidence(  # noqa: E731
         left, right, disp, conf, (0, 40), check=MatchCheck(**check), alpha=alpha) > 0
-    assert (confident(edge_window=0, min_alpha=0) & ~square).sum() > 100  # the halo
-    for c in (confident(min_alpha=0), confident(square.astype(np.float32), edge_window=0),
-              confident(square.astype(np.float32))):
+    assert (confident(edge_window=0, min_alpha=0, min_light=0) & ~square).sum() > 100  # the halo
+    for c in (confident(min_alpha=0, min_light=0), confident(square.astype(np.float32), edge_window=0, min_light=0),
+              confident(edge_window=0, min_alpha=0), confident(square.astype(np.float32))):
         assert not (c & ~square).any() and c[square].mean() > 0.5 and np.all(disp[c] == 12)
 
 

@@ -473,6 +473,11 @@ class MatchCheck(Checked):
     texture and gives the background beside it the foreground's disparity (0 = off)."""
     jump: float = setting(1.0, gt=0)
     """Disparity difference between adjacent pixels that counts as a jump (px)."""
+    min_light: float = setting(1.0, ge=0, le=255)
+    """Not confident where the photo (as matched, 0–255) has a grey level below this within
+    a pixel: no light came from there, so there is nothing to match, and a network that
+    answers everywhere carries its neighbours' depth into it (HITNet: the table's depth a
+    few pixels into the black background beyond its edge). 0 = off."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
