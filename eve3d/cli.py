@@ -8,6 +8,7 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+from eve3d.core import timing
 from eve3d.core.scene import Eve3dError
 
 
@@ -117,6 +118,12 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     min_confidence = _settings(a, MeshSettings, "mesh", config).min_confidence  # the pixels the mesh fused
     run(settings, min_confidence, **paths, mesh=a.mesh, model=a.model, depth=a.depth, exact_depth=a.exact_depth,
         row={"scene": a.scene_name, "method": a.method} if a.scene_name else None)
+
+
+def _cmd_profile(a: argparse.Namespace) -> None:
+    from eve3d.tools.profile import run
+
+    run(log=a.log, workdir=a.workdir, markdown=a.markdown)
 
 
 def _cmd_summary(a: argparse.Namespace) -> None:
@@ -296,6 +303,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True)
     s.add_argument("--failed", help="JSON rows of scenes and methods whose jobs failed (written by the workflow)")
     s.set_defaults(func=_cmd_summary)
+    s = sub.add_parser("profile", help="where a workflow run's wall time went, job by job and inside each job "
+                       "(from Snakemake's log of the run and each job's timing line)")
+    s.add_argument("--log", help="a Snakemake log (.snakemake/log/*.snakemake.log); default: the newest in --workdir")
+    s.add_argument("--workdir", default=".", help="the folder the workflow ran in (default: here)")
+    s.add_argument("--markdown", action="store_true", help="print Markdown tables (for docs/)")
+    s.set_defaults(func=_cmd_profile)
     s = sub.add_parser("report", help="the report's pages from a results folder (snakemake --report gathers them)")
     s.add_argument("--results", required=True, help="the results folder (its summary.csv and benchmark files)")
     s.add_argument("--out", required=True, help="folder for summary.html, runtimes.html, charts/, scenes/")
@@ -505,6 +518,10 @@ def main(argv: list[str] | None = None) -> int:
     except Eve3dError as e:
         print(f"eve3d {args.command}: error: {e}", file=sys.stderr)
         return 2
+    line = timing.summary()  # where a stage's time went (`eve3d profile` reads it from the job's log)
+    timing.reset()
+    if line:
+        print(line, file=sys.stderr)
     return 0
 
 

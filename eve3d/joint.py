@@ -31,6 +31,7 @@ from eve3d.core.maps import save_maps
 from eve3d.core.methods import uses_priors
 from eve3d.core.scene import Eve3dError, Scene
 from eve3d.core.settings import JointSettings, RenderSettings
+from eve3d.core.timing import phase
 from eve3d.gaussians.neighbours import select_neighbours
 from eve3d.gaussians.render import RenderOutput, render_model
 from eve3d.gaussians.render.projection import CameraTensors
@@ -286,15 +287,17 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
     rng = np.random.default_rng(s.seed)
     prior = None
     if with_priors:
-        loaded = load_priors(Path(priors_dir), scene.cameras, views.cameras, trainer.device, s.prior_normal_span)
+        with phase("read priors"):
+            loaded = load_priors(Path(priors_dir), scene.cameras, views.cameras, trainer.device, s.prior_normal_span)
         if s.init == "priors":
             points, colors = prior_points(loaded, views.cameras, views.images, views.train_ids, s.init_prior_points,
                                           rng)
         prior = PriorState(state, views, loaded, s) if s.priors != "none" else None
         trainer.checkpoint.depend_on(loaded.digest)
-    if s.init != "priors":
-        points, colors = initial_points(scene, s.init_random_points, rng, s.init_drop_isolated)
-    state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
+    with phase("initial Gaussians"):
+        if s.init != "priors":
+            points, colors = initial_points(scene, s.init_random_points, rng, s.init_drop_isolated)
+        state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
     exposure = None
     if s.exposure:
         exposure = state.add_extra("exposure", torch.eye(3, 4).repeat(len(views), 1, 1), s.exposure_lr)
@@ -309,15 +312,20 @@ def train_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
     trainer.run(run.loss)
     model, views, depth_kind = trainer.model, trainer.views, s.depth
     if prior is not None and prior.learnable:
-        export_priors(trainer, scene, prior, out_dir / PRIORS_DIR, depth_kind)
-    model.save_ply(out_dir / MODEL_FILE)
-    export_depths(model, scene, s, out_dir / DEPTH_DIR, depth_kind)
-    metrics = {RECORD: TRAINING, "method": s.method, "train": view_metrics(model, views, views.train_ids, s),
-               "held_out": view_metrics(model, views, views.test_ids, s), "gaussians": len(model),
-               "depth": depth_kind, "settings": asdict(s)}
+        with phase("export priors"):
+            export_priors(trainer, scene, prior, out_dir / PRIORS_DIR, depth_kind)
+    with phase("save"):
+        model.save_ply(out_dir / MODEL_FILE)
+    with phase("export depths"):
+        export_depths(model, scene, s, out_dir / DEPTH_DIR, depth_kind)
+    with phase("metrics"):
+        metrics = {RECORD: TRAINING, "method": s.method, "train": view_metrics(model, views, views.train_ids, s),
+                   "held_out": view_metrics(model, views, views.test_ids, s), "gaussians": len(model),
+                   "depth": depth_kind, "settings": asdict(s)}
     with atomic_path(out_dir / TRAIN_METRICS_FILE) as tmp:
         tmp.write_text(json.dumps(metrics, indent=2, default=str))
-    write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth=depth_kind)
+    with phase("previews"):
+        write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth=depth_kind)
     trainer.checkpoint.remove()
     return metrics
 
@@ -326,6 +334,8 @@ def run(settings: JointSettings, *, scene: Path, out: Path, priors: Path | None 
     """The ``joint`` stage: train ``settings.method`` on the posed dataset ``scene`` into ``out``."""
     from eve3d.core.io import load_scene
 
-    metrics = train_joint(load_scene(scene), Path(out), settings, Path(priors) if priors else None)
+    with phase("read scene"):
+        loaded = load_scene(scene)
+    metrics = train_joint(loaded, Path(out), settings, Path(priors) if priors else None)
     print(f"training views: PSNR {metrics['train']['psnr']:.2f} dB; wrote {out}/point_cloud.ply "
           f"({metrics['gaussians']} Gaussians) and {out}/depth/")

@@ -21,6 +21,7 @@ from eve3d.core.maps import load_maps, map_camera
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Eve3dError, Scene
 from eve3d.core.settings import MeshSettings
+from eve3d.core.timing import phase
 
 BLOCK_RESOLUTION = 8
 MAX_BLOCKS = 2**31 // (BLOCK_RESOLUTION**3 * 16)
@@ -478,14 +479,18 @@ def run(settings: MeshSettings, *, scene: Path, depth: Path, out: Path, kind: st
 
     out = Path(out)
     check_mesh_path(out)
-    loaded = load_scene(scene, check_images=False)
+    with phase("read scene"):
+        loaded = load_scene(scene, check_images=False)
     if kind:
         loaded.kind = kind
-    mesh = fuse(loaded, Path(depth), settings)
-    write_mesh(mesh, out)
+    with phase("fuse"):
+        mesh = fuse(loaded, Path(depth), settings)
+    with phase("write"):
+        write_mesh(mesh, out)
     report = extent_report(mesh, loaded)
     print(f"wrote {out}: {len(mesh.vertices)} vertices, {report['triangles']} triangles, extent {report['extent']}"
           + (f", {report['extent_ratio']:.2f}× the sparse points' 5–95 % box {report['sparse_extent']}"
              if report["extent_ratio"] is not None else ""))
-    views = write_mesh_views(mesh, loaded, out.with_name(MESH_VIEWS_DIR))
+    with phase("mesh views"):
+        views = write_mesh_views(mesh, loaded, out.with_name(MESH_VIEWS_DIR))
     print(f"wrote {len(views)} shaded views to {views[0].parent}")

@@ -27,6 +27,7 @@ from eve3d.core.fileio import atomic_path
 from eve3d.core.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TONE_FILE, TRAIN_METRICS_FILE, TRAINING
 from eve3d.core.photos import scene_tone_curve
 from eve3d.core.scene import Scene
+from eve3d.core.timing import phase
 from eve3d.core.settings import PretrainSettings, RenderSettings
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import render_model
@@ -83,14 +84,16 @@ class PretrainRun:
 def setup_pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> PretrainRun:
     """The trainer with its initial Gaussians, the photometric loss and the stage's events."""
     s = settings
-    tone = scene_tone_curve(scene, s.equalize)
+    with phase("tone curve"):
+        tone = scene_tone_curve(scene, s.equalize)
     trainer = Trainer(scene, s, Path(out_dir), "pretrain", tone)
     state, views = trainer.state, trainer.views
     rng = np.random.default_rng(s.seed)
-    points, colors = initial_points(scene, s.init_random_points, rng, s.init_drop_isolated)
-    if colors is not None:  # the sparse points' photo colours, into the curve's grey levels
-        colors = tone[np.round(colors * 255).astype(np.uint8)] / 255.0
-    state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
+    with phase("initial Gaussians"):
+        points, colors = initial_points(scene, s.init_random_points, rng, s.init_drop_isolated)
+        if colors is not None:  # the sparse points' photo colours, into the curve's grey levels
+            colors = tone[np.round(colors * 255).astype(np.uint8)] / 255.0
+        state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
 
     def events(step: int) -> None:
         if step in s.reinit_at:
@@ -120,16 +123,19 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     views = trainer.views
     trainer.run(run.loss, run.events)
     model = trainer.model
-    model.save_ply(out_dir / MODEL_FILE)
+    with phase("save"):
+        model.save_ply(out_dir / MODEL_FILE)
     with atomic_path(out_dir / TONE_FILE) as tmp:
         tmp.write_text(json.dumps(tone.tolist()))
-    metrics = {RECORD: TRAINING, "held_out": view_metrics(model, views, views.test_ids, s),
-               "train": view_metrics(model, views, views.train_ids, s),
-               "gaussians": len(model), "iterations": s.iterations, "resolution": s.resolution,
-               "settings": asdict(s)}
+    with phase("metrics"):
+        metrics = {RECORD: TRAINING, "held_out": view_metrics(model, views, views.test_ids, s),
+                   "train": view_metrics(model, views, views.train_ids, s),
+                   "gaussians": len(model), "iterations": s.iterations, "resolution": s.resolution,
+                   "settings": asdict(s)}
     with atomic_path(out_dir / TRAIN_METRICS_FILE) as tmp:
         tmp.write_text(json.dumps(metrics, indent=2, default=str))
-    write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth="depth_expected")
+    with phase("previews"):
+        write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth="depth_expected")
     trainer.checkpoint.remove()
     return metrics
 
@@ -138,7 +144,9 @@ def run(settings: PretrainSettings, *, scene: Path, out: Path) -> None:
     """The ``pretrain`` stage: the posed dataset ``scene`` to a model in ``out``."""
     from eve3d.core.io import load_scene
 
-    metrics = pretrain(load_scene(scene), Path(out), settings)
+    with phase("read scene"):
+        loaded = load_scene(scene)
+    metrics = pretrain(loaded, Path(out), settings)
     held = metrics["held_out"]
     if held:
         print(f"held-out views ({held['views']}): PSNR {held['psnr']:.2f} dB, SSIM {held['ssim']:.4f}")

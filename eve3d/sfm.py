@@ -19,6 +19,7 @@ from eve3d.core.io.loader import METADATA
 from eve3d.core.photos import import_photos, scan_photos, write_pyramid
 from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import SfmSettings
+from eve3d.core.timing import phase
 
 
 def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Path:
@@ -33,11 +34,13 @@ def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Pa
         if model is None:
             model = _reconstruct(photos, tmp / "work", s)
             image_dir = tmp / "work" / "images"
-        pycolmap.undistort_images(str(tmp / "undistorted"), str(model), str(image_dir), output_type="COLMAP")
+        with phase("undistort"):
+            pycolmap.undistort_images(str(tmp / "undistorted"), str(model), str(image_dir), output_type="COLMAP")
         (tmp / "sparse").mkdir()
         shutil.move(tmp / "undistorted" / "sparse", tmp / "sparse" / "0")
         shutil.move(tmp / "undistorted" / "images", tmp / "images")
-        write_pyramid(tmp / "images")
+        with phase("pyramid"):
+            write_pyramid(tmp / "images")
         for scratch in ("undistorted", "work"):
             shutil.rmtree(tmp / scratch, ignore_errors=True)
         if (dataset / METADATA).exists():
@@ -55,7 +58,8 @@ def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
 
     work.mkdir(parents=True)
     image_dir = work / "by_size"
-    names = import_photos(photos, image_dir, s.max_image_size)
+    with phase("import photos"):
+        names = import_photos(photos, image_dir, s.max_image_size)
     pycolmap.set_random_seed(s.seed)
     db = work / "database.db"
     reader = pycolmap.ImageReaderOptions()
@@ -63,14 +67,17 @@ def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = s.max_image_size
     extraction.num_threads = s.threads
-    pycolmap.extract_features(str(db), str(image_dir), image_names=names,
-                              camera_mode=pycolmap.CameraMode.PER_FOLDER if s.single_camera else pycolmap.CameraMode.AUTO,
-                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-    match_features(db, s)
+    with phase("features"):
+        pycolmap.extract_features(str(db), str(image_dir), image_names=names,
+                                  camera_mode=pycolmap.CameraMode.PER_FOLDER if s.single_camera else pycolmap.CameraMode.AUTO,
+                                  reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+    with phase("matching"):
+        match_features(db, s)
     options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = s.seed
     options.num_threads = s.threads
-    models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), options)
+    with phase("mapping"):
+        models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), options)
     if not models:
         raise Eve3dError(f"{photos[0].parent}: SfM could not register any image pair (too little texture or overlap?)")
     best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())

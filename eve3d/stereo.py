@@ -25,6 +25,7 @@ from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Eve3dError, Scene
 from eve3d.core.settings import PRIOR_BACKENDS, BaselineSettings, MatchCheck, RenderSettings, StereoSettings
 from eve3d.core.settings_fields import pick
+from eve3d.core.timing import phase
 from eve3d.gaussians.neighbours import select_neighbours
 
 
@@ -237,24 +238,31 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
         for i, (cam, near) in enumerate(zip(tqdm(cameras, desc=name, unit="view"), neighbours)):
             pair = views[cam.view_id]
             margin, search = int(pair["margin"]), (float(pair["min_disparity"]), float(pair["max_disparity"]))
-            left = photo(i)
+            with phase("read photos"):
+                left = photo(i)
             right_path = stereo_dir / "right" / f"{cam.view_id}.png"
             right = read_image(right_path)
             if right.shape[0] != left.shape[0] or right.shape[1] != left.shape[1] + margin:
                 raise Eve3dError(f"{right_path}: {right.shape[1]}×{right.shape[0]}, expected the photo's "
                                  f"{left.shape[1]}×{left.shape[0]} plus {margin} columns on the left")
             padded = np.pad(left, ((0, 0), (margin, 0)) + ((0, 0),) * (left.ndim - 2))
-            disp, confidence = (m[:, margin:] for m in matcher(padded, right, search))
-            confidence = checked_confidence(left, right, disp, confidence, search, margin, check,
-                                            left_alpha(stereo_dir, cam) if check.min_alpha > 0 else None)
+            with phase("match"):
+                disp, confidence = (m[:, margin:] for m in matcher(padded, right, search))
+            with phase("checks"):
+                confidence = checked_confidence(left, right, disp, confidence, search, margin, check,
+                                                left_alpha(stereo_dir, cam) if check.min_alpha > 0 else None)
             depth = np.where(disp > 0, cam.fx * float(pair["baseline"]) / np.maximum(disp, 1e-6), 0).astype(np.float32)
             if check.mv_ncc_threshold > 0 and len(near) >= check.mv_views:
-                others = [(cameras[j], photo(j)) for j in near]
-                agree = (neighbour_ncc(cam, left, depth, others, check.ncc_window) >= check.mv_ncc_threshold).sum(0)
+                with phase("read photos"):
+                    others = [(cameras[j], photo(j)) for j in near]
+                with phase("checks"):
+                    agree = (neighbour_ncc(cam, left, depth, others, check.ncc_window)
+                             >= check.mv_ncc_threshold).sum(0)
                 confidence = np.where(agree >= check.mv_views, confidence, 0).astype(np.float32)
-            normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()
-            save_maps(tmp / f"{cam.view_id}.npz", preview=preview, depth=depth,
-                      confidence=confidence.astype(np.float32), normal=normal)
+            with phase("write"):
+                normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()
+                save_maps(tmp / f"{cam.view_id}.npz", preview=preview, depth=depth,
+                          confidence=confidence.astype(np.float32), normal=normal)
 
 
 PAIR_KEYS = {"baseline", "min_disparity", "max_disparity", "margin"}
@@ -280,7 +288,10 @@ def run_render(settings: StereoSettings, rendering: RenderSettings, *, scene: Pa
     (``rendering``: as it was trained) into ``out``."""
     from eve3d.core.io import load_scene
 
-    info = render_right_views(load_scene(scene), Path(model), Path(out), pick(BaselineSettings, settings), rendering)
+    with phase("read scene"):
+        loaded = load_scene(scene)
+    with phase("render right views"):
+        info = render_right_views(loaded, Path(model), Path(out), pick(BaselineSettings, settings), rendering)
     b = [v["baseline"] for v in info["views"].values()]
     print(f"wrote {len(b)} right views to {out}/right (baseline {min(b):.4g} to {max(b):.4g})")
 
@@ -293,14 +304,17 @@ def run_depth(settings: StereoSettings, *, scene: Path, out: Path, stereo: Path 
     from eve3d.core.io import load_scene
 
     backend = PRIOR_BACKENDS[settings.backend]
-    loaded, out = load_scene(scene), Path(out)
+    with phase("read scene"):
+        loaded, out = load_scene(scene), Path(out)
     if backend.reads == "pairs" and not stereo:
         raise Eve3dError(f"--backend {backend.name} needs --stereo (the output folder of `eve3d stereo-render`)")
     module = importlib.import_module(backend.module)
     if backend.reads == "gt_mesh":
         module.priors_from_mesh(loaded, out, Path(gt_mesh) if gt_mesh else None, preview=preview)
     else:
-        stereo_priors(loaded, Path(stereo), out, module.matcher(settings), backend.label, preview=preview,
+        with phase("load model"):
+            matcher = module.matcher(settings)
+        stereo_priors(loaded, Path(stereo), out, matcher, backend.label, preview=preview,
                       check=pick(MatchCheck, settings))
     print(f"wrote {len(loaded.cameras)} depth maps to {out}")
 

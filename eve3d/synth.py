@@ -32,6 +32,7 @@ from tqdm import tqdm
 from eve3d.core.fileio import atomic_dir, write_image
 from eve3d.core.io.colmap import triangulate_known_poses, write_colmap
 from eve3d.core.io.loader import METADATA
+from eve3d.core.timing import phase
 from eve3d.core.raycast import MeshRaycaster, seen_by
 from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import SfmSettings, SyntheticSettings
@@ -409,6 +410,7 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
 def run(settings: SyntheticSettings, *, kind: str, out: Path, images_only: bool = False) -> None:
     """The ``synth`` stage: the generated scene ``kind``, sized by ``settings``, into ``out``."""
     s = settings
-    generate(kind, Path(out), views=s.views, width=s.width, height=s.height, seed=s.seed, images_only=images_only,
-             arc=s.arc, surface_samples=s.surface_samples)
+    with phase("generate"):
+        generate(kind, Path(out), views=s.views, width=s.width, height=s.height, seed=s.seed, images_only=images_only,
+                 arc=s.arc, surface_samples=s.surface_samples)
     print(f"wrote {out}")

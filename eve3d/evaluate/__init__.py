@@ -22,6 +22,7 @@ from pathlib import Path
 from eve3d.core.scene import Eve3dError, Scene
 from eve3d.core.settings import EvalSettings
 from eve3d.core.settings_fields import flag
+from eve3d.core.timing import phase
 
 
 @dataclass
@@ -202,7 +203,8 @@ def run(settings: EvalSettings, min_confidence: float, *, scene: Path, out: Path
     from eve3d.core.fileio import atomic_path
     from eve3d.core.layout import EVALUATION, RECORD, format_table
 
-    chosen, loaded, gt = _inputs(scene, protocol, ground_truth)
+    with phase("read scene"):
+        chosen, loaded, gt = _inputs(scene, protocol, ground_truth)
     reconstruction = model if chosen.scores == "model" else mesh
     if reconstruction is None:
         needed = "--model (a trained point_cloud.ply)" if chosen.scores == "model" else "--mesh"
@@ -210,11 +212,13 @@ def run(settings: EvalSettings, min_confidence: float, *, scene: Path, out: Path
     if bool(depth) != bool(exact_depth):
         raise Eve3dError("--depth and --exact-depth go together: the maps the mesh fused, and the exact depth of "
                          "the same views")
-    metrics = chosen.run(EvalInputs(loaded, Path(reconstruction), Path(out), **gt, settings=settings))
+    with phase("score"):
+        metrics = chosen.run(EvalInputs(loaded, Path(reconstruction), Path(out), **gt, settings=settings))
     if depth:
         from eve3d.evaluate.depth import depth_accuracy
 
-        acc = depth_accuracy(Path(depth), Path(exact_depth), min_confidence=min_confidence)
+        with phase("depth accuracy"):
+            acc = depth_accuracy(Path(depth), Path(exact_depth), min_confidence=min_confidence)
         metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
                         "depth_density": acc["density"], "depth_on_empty": acc["on_empty"], "depth_maps": str(depth)})
     if "tau" in metrics:

@@ -27,6 +27,7 @@ from tqdm import tqdm
 
 from eve3d.core.scene import Eve3dError, Scene
 from eve3d.core.settings import TrainSettings
+from eve3d.core.timing import phase
 from eve3d.gaussians.losses import psnr, rgb_loss
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import RenderOutput, render_model
@@ -66,7 +67,8 @@ class Trainer:
                  tone: np.ndarray | None = None):
         self.s, self.name = settings, name
         self.device = pick_device(settings.device)
-        self.views = Views.load(scene, settings, settings.holdout, self.device, tone)
+        with phase("read photos"):
+            self.views = Views.load(scene, settings, settings.holdout, self.device, tone)
         self.state = TrainState(settings, scene.radius, len(self.views), self.device)
         self.checkpoint = Checkpoint(work_dir, settings, scene, name)
 
@@ -116,6 +118,14 @@ class Trainer:
         self.checkpoint.resume(st)
         end = self.s.iterations if until is None else min(until, self.s.iterations)
         progress = _Progress(self.name, self.s.iterations, st.step)
+        with phase("steps"):
+            self._loop(loss_terms, events, end, progress)
+        progress.close()
+
+    def _loop(self, loss_terms: LossTerms, events: Callable[[int], None] | None, end: int,
+              progress: _Progress) -> None:
+        """The steps of :meth:`run`."""
+        st = self.state
         while st.step < end:
             step = st.step
             st.set_means_lr(self.means_lr(step))
@@ -133,14 +143,14 @@ class Trainer:
             loss.backward()
             st.optimizer_step()
             st.step = step + 1
-            with torch.no_grad():
+            with torch.no_grad(), phase("densify"):
                 st.densify(out, view.index)
                 if events is not None:
                     events(st.step)
             progress.update(st.step, float(loss.detach()), psnr(out.rgb.clamp(0, 1), view.image), len(self.model))
             if self.s.checkpoint_every and st.step % self.s.checkpoint_every == 0 and st.step < self.s.iterations:
-                self.checkpoint.save(st)
-        progress.close()
+                with phase("checkpoints"):
+                    self.checkpoint.save(st)
 
 
 class _Progress:

@@ -4,6 +4,7 @@ import json
 import math
 import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import yaml
@@ -135,6 +136,7 @@ def test_tiny_training_run(tmp_path):
     layout = Layout(results)
     r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
+    run_log = re.search(r"Complete log\(s\): (\S+)", r.stderr).group(1)
     rows = list(csv.DictReader(open(layout.summary())))
     assert [(row["scene"], row["method"]) for row in rows] == [
         ("tiny", "3dgs"), ("tiny", "eve3d"), ("tiny", "pgsr"), ("tiny", "stereo-tsdf")]
@@ -193,6 +195,21 @@ def test_tiny_training_run(tmp_path):
         assert_mesh(results / f"tiny/{method}/mesh.ply")
         m = assert_mesh_metrics(results / f"tiny/{method}/metrics.json", "tiny", method)
         assert float(summary["tiny", method]["fscore"]) == pytest.approx(m["fscore"])
+    assert_profile(run_log)
+
+
+def assert_profile(log: str) -> None:
+    """``eve3d profile`` of a real run: every stage's job printed its phases, which add up to
+    its wall time within Snakemake's one-second stamps, and the training jobs' steps are there."""
+    from eve3d.tools.profile import read_run
+
+    run = read_run(Path(log))
+    stages = [j for j in run.jobs if j.rule not in ("summary", "report_pages", "check_ground_truth")]
+    assert stages and all(j.phases for j in stages), [j.title for j in stages if not j.phases]
+    for job in stages:
+        assert sum(v for k, v in job.phases.items() if k != "total") == pytest.approx(job.phases["total"], abs=0.3)
+        assert job.phases["total"] <= job.wall + 1.5 and job.phases["start-up"] > 0
+    assert all(j.phases["steps"] > 0 for j in stages if j.rule in ("pretrain", "joint"))
 
 
 @pytest.mark.slow

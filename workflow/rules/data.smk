@@ -15,6 +15,8 @@ rule synth:
         args=synth_args,
     log:
         LAYOUT.log("{scene}", "synth"),
+    benchmark:
+        LAYOUT.benchmark("{scene}", "synth"),
     conda:
         CONDA_ENV
     shell:

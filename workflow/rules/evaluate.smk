@@ -29,6 +29,8 @@ rule evaluate:
         args=evaluate_args,
     log:
         LAYOUT.log("{scene}", "evaluate", "{method}"),
+    benchmark:
+        LAYOUT.benchmark("{scene}", "evaluate", "{method}"),
     conda:
         CONDA_ENV
     shell:
