@@ -20,7 +20,7 @@ import numpy as np
 from eve3d.core.photos import warn
 from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import HitnetSettings, StereoSettings
-from eve3d.priors.matching import left_right_consistent, mirrored
+from eve3d.priors.matching import left_right_consistent, mirrored, onnx_session
 
 INPUT, OUTPUT = "input", "reference_output_disparity"
 WHERE = ("HITNet's ETH3D exports (hitnet_eth3d_HxW.onnx) are the release assets v0.1-hitnet of the stereodemo "
@@ -32,8 +32,6 @@ class HitnetStereo:
     """``matcher(left, right, (min, max))`` for :func:`eve3d.stereo.stereo_priors`."""
 
     def __init__(self, settings: HitnetSettings):
-        import onnxruntime as ort
-
         self.s = settings
         if not settings.model:
             raise Eve3dError(f"--backend hitnet needs the model file: set stereo.hitnet.model (--set "
@@ -41,9 +39,8 @@ class HitnetStereo:
         self.path = Path(settings.model).expanduser()
         if not self.path.is_file():
             raise Eve3dError(f"{self.path}: HITNet model not found (stereo.hitnet.model). {WHERE}")
-        providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in ort.get_available_providers()]
         try:
-            self.session = ort.InferenceSession(str(self.path), providers=providers)
+            self.session = onnx_session(self.path)
         except Exception as e:  # noqa: BLE001 (onnxruntime raises its own exception types)
             raise Eve3dError(f"{self.path}: not a loadable ONNX model ({type(e).__name__}: {e}); expected HITNet: "
                              f"{CONTRACT}. {WHERE}") from None

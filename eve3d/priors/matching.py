@@ -1,8 +1,10 @@
 """What every stereo backend shares: the left–right check, the right image's own disparity
-from a left-image matcher, and the local texture measure of the confidence checks."""
+from a left-image matcher, the local texture measure of the confidence checks, and the onnxruntime
+session of the network backends."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -13,6 +15,23 @@ def mirrored(matcher: Callable[[np.ndarray, np.ndarray], np.ndarray], left: np.n
     right matcher): mirroring both images turns the right view into a left view."""
     flip = lambda im: np.ascontiguousarray(im[:, ::-1])  # noqa: E731
     return np.ascontiguousarray(matcher(flip(right), flip(left))[:, ::-1])
+
+
+def onnx_session(path: Path):
+    """An onnxruntime session of the model at ``path``: its CUDA provider where onnxruntime has
+    one, and on the CPU as many threads as ``OMP_NUM_THREADS`` says (the workflow's share of
+    the cores for the job; onnxruntime's default, every core, otherwise). Raises what
+    onnxruntime raises for a file it cannot load."""
+    import os
+
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    threads = os.environ.get("OMP_NUM_THREADS", "")
+    if threads.isdigit() and int(threads) > 0:
+        options.intra_op_num_threads = int(threads)
+    providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in ort.get_available_providers()]
+    return ort.InferenceSession(str(path), sess_options=options, providers=providers)
 
 
 def left_right_consistent(disp_l: np.ndarray, disp_r: np.ndarray, threshold: float) -> np.ndarray:

@@ -16,22 +16,19 @@ import numpy as np
 
 from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import OnnxSpec, StereoSettings
-from eve3d.priors.matching import left_right_consistent, mirrored
+from eve3d.priors.matching import left_right_consistent, mirrored, onnx_session
 
 
 class OnnxStereo:
     """A loaded network and its spec; ``disparity(left, right)`` → (H, W) float32 pixels."""
 
     def __init__(self, spec: OnnxSpec):
-        import onnxruntime as ort
-
         self.spec = spec
         path = Path(spec.model)
         if not path.is_file():
             raise Eve3dError(f"{path}: ONNX stereo model not found (stereo.onnx.model)")
-        providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in ort.get_available_providers()]
         try:
-            self.session = ort.InferenceSession(str(path), providers=providers)
+            self.session = onnx_session(path)
         except Exception as e:  # noqa: BLE001 (onnxruntime raises its own exception types)
             raise Eve3dError(f"{path}: not a loadable ONNX model ({type(e).__name__}: {e})") from None
         inputs = {i.name: i.shape for i in self.session.get_inputs()}

@@ -95,6 +95,34 @@ def test_default_config_dry_run_lists_every_stage(tmp_path):
         assert rule in r.stdout + r.stderr
 
 
+def job_threads(dry_run: str) -> dict[str, int]:
+    """Threads per job title ("joint synthetic-object pgsr") in ``snakemake -n``'s output."""
+    threads, rule, title = {}, None, None
+    for line in dry_run.splitlines():
+        if m := re.match(r"(?:local)?rule (\w+):", line):
+            rule = m.group(1)
+        elif rule and (m := re.match(r"\s+wildcards: (.*)", line)):
+            title = " ".join([rule, *(v.split("=")[1] for v in m.group(1).split(", "))])
+            threads[title] = 1  # Snakemake prints no threads line for one thread
+        elif title and (m := re.match(r"\s+threads: (\d+)", line)):
+            threads[title] = int(m.group(1))
+    return threads
+
+
+@pytest.mark.parametrize("cores, methods, expected", [(2, ["pgsr", "eve3d"], 1), (4, ["pgsr", "eve3d"], 2),
+                                                      (2, ["eve3d"], 2)])
+def test_training_jobs_share_the_cores(tmp_path, cores, methods, expected):
+    """The training jobs (and a stereo network's) take the cores shared among the run's
+    training jobs: two one-thread jobs side by side beat two two-thread jobs in turn."""
+    cfg = write_config(tmp_path, methods=methods, stereo={"backend": "hitnet"},
+                       scenes={"s": {"synthetic": {"kind": "object"}}})
+    r = snakemake("-n", f"-c{cores}", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode == 0, r.stderr[-3000:]
+    threads = job_threads(r.stdout + r.stderr)
+    trained = {t: n for t, n in threads.items() if t.startswith(("pretrain", "joint", "stereo_depth s hitnet"))}
+    assert len(trained) == len(methods) + 2 and set(trained.values()) == {expected}, threads
+
+
 def test_slurm_profile_dry_runs_without_slurm(tmp_path):
     r = snakemake("-n", "--profile", str(REPO / "profiles/slurm"), "--config", f"results={tmp_path}")
     assert r.returncode == 0, r.stderr[-3000:]

@@ -15,6 +15,7 @@ rule stereo_render:
         LAYOUT.log("{scene}", "stereo_render"),
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_render"),
+    priority: 1
     resources:
         **ON_GAUSSIAN_DEVICE,
     conda:
@@ -38,11 +39,14 @@ rule stereo_depth:
         LAYOUT.log("{scene}", "stereo_depth", "{backend}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_depth", "{backend}"),
+    # a network (onnxruntime) takes a training job's share of the cores; a matcher one
+    threads: lambda wc: training_threads() if PRIOR_BACKENDS[wc.backend].device == "gpu" else 1
+    priority: 1
     resources:
         **device_resources(lambda wc: PRIOR_BACKENDS[wc.backend].device),
     conda:
         CONDA_ENV
     shell:
-        "{EVE3D} stereo-depth --backend {wildcards.backend} --scene {input.scene} --out {output} {params.args}"
+        "OMP_NUM_THREADS={threads} {EVE3D} stereo-depth --backend {wildcards.backend} --scene {input.scene} --out {output} {params.args}"
         " --config {params.config}"
         " > {log} 2>&1"

@@ -1,5 +1,6 @@
 # Gaussian training: the pretrain stage and the joint stage of each trained method. Each job
-# takes every core it is given (OpenMP in the CPU rasteriser); on a GPU the cores matter less.
+# takes its share of the cores (OpenMP in the CPU rasteriser: training_threads); on a GPU the
+# cores matter less.
 
 
 rule pretrain:
@@ -17,7 +18,8 @@ rule pretrain:
         LAYOUT.log("{scene}", "pretrain"),
     benchmark:
         LAYOUT.benchmark("{scene}", "pretrain"),
-    threads: all_cores()
+    threads: training_threads()
+    priority: 1  # the longest chain (pretrain, stereo, a method with priors) starts first
     resources:
         **ON_GAUSSIAN_DEVICE,
     conda:
@@ -44,7 +46,7 @@ rule joint:
         LAYOUT.log("{scene}", "joint", "{method}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "joint", "{method}"),
-    threads: all_cores()
+    threads: training_threads()
     resources:
         **device_resources(lambda wc: METHOD[wc.method].device),
     conda:
