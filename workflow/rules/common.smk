@@ -85,15 +85,6 @@ def all_cores():
     return workflow.resource_settings.cores or 1
 
 
-def training_threads():
-    """Threads of a training job, and of a stereo network's job: the run's cores shared among
-    its training jobs (one per trained method and scene), at least one. On 2 cores two one-thread
-    training jobs side by side each ran at 0.98 of one alone, while a second thread made a job
-    only 1.36× faster (docs/development.md, "Where a run's time goes")."""
-    jobs = sum(1 for s in SCENES for m in scene_methods(s) if METHOD[m].trains)
-    return max(1, all_cores() // max(jobs, 1))
-
-
 def device_resources(device):
     """The resources of a job that runs on ``device(wildcards)``: "gpu" or "cpu"."""
     resources = {"gpu": lambda wc: int(device(wc) == "gpu")}

@@ -39,8 +39,8 @@ rule stereo_depth:
         LAYOUT.log("{scene}", "stereo_depth", "{backend}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_depth", "{backend}"),
-    # a network (onnxruntime) takes a training job's share of the cores; a matcher one
-    threads: lambda wc: training_threads() if PRIOR_BACKENDS[wc.backend].device == "gpu" else 1
+    # a network (onnxruntime) every core, as a training job; a matcher one
+    threads: lambda wc: all_cores() if PRIOR_BACKENDS[wc.backend].device == "gpu" else 1
     priority: 1
     resources:
         **device_resources(lambda wc: PRIOR_BACKENDS[wc.backend].device),

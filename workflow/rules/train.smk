@@ -1,6 +1,5 @@
 # Gaussian training: the pretrain stage and the joint stage of each trained method. Each job
-# takes its share of the cores (OpenMP in the CPU rasteriser: training_threads); on a GPU the
-# cores matter less.
+# takes every core it is given (OpenMP in the CPU rasteriser); on a GPU the cores matter less.
 
 
 rule pretrain:
@@ -18,7 +17,9 @@ rule pretrain:
         LAYOUT.log("{scene}", "pretrain"),
     benchmark:
         LAYOUT.benchmark("{scene}", "pretrain"),
-    threads: training_threads()
+    # Every core, not a share: on 2 cores one-thread jobs side by side made the demo slower
+    # (docs/development.md, "Where a run's time goes")
+    threads: all_cores()
     priority: 1  # the longest chain (pretrain, stereo, a method with priors) starts first
     resources:
         **ON_GAUSSIAN_DEVICE,
@@ -46,7 +47,7 @@ rule joint:
         LAYOUT.log("{scene}", "joint", "{method}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "joint", "{method}"),
-    threads: training_threads()
+    threads: all_cores()
     resources:
         **device_resources(lambda wc: METHOD[wc.method].device),
     conda:
