@@ -15,7 +15,6 @@ rule stereo_render:
         LAYOUT.log("{scene}", "stereo_render"),
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_render"),
-    priority: 1
     resources:
         **ON_GAUSSIAN_DEVICE,
     conda:
@@ -41,7 +40,6 @@ rule stereo_depth:
         LAYOUT.benchmark("{scene}", "stereo_depth", "{backend}"),
     # a network (onnxruntime) every core, as a training job; a matcher one
     threads: lambda wc: all_cores() if PRIOR_BACKENDS[wc.backend].device == "gpu" else 1
-    priority: 1
     resources:
         **device_resources(lambda wc: PRIOR_BACKENDS[wc.backend].device),
     conda:

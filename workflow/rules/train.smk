@@ -20,7 +20,6 @@ rule pretrain:
     # Every core, not a share: on 2 cores one-thread jobs side by side made the demo slower
     # (docs/development.md, "Where a run's time goes")
     threads: all_cores()
-    priority: 1  # the longest chain (pretrain, stereo, a method with priors) starts first
     resources:
         **ON_GAUSSIAN_DEVICE,
     conda:
