@@ -1,7 +1,7 @@
 // Fused projection (projection.cpp), bound to Python in rasterize.cpp's module.
 #pragma once
 
-#include <torch/extension.h>
+#include <torch/types.h>  // tensors only: torch/extension.h took 51 s to compile, this 17 s
 
 #include <vector>
 
