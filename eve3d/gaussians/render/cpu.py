@@ -5,7 +5,7 @@ The projection fuses what :func:`eve3d.gaussians.render.projection.project_gauss
 small PyTorch operations (with their autograd graph, about a third of a render's forward and
 backward at training sizes); that function stays the reference the tests compare this one
 with. The extension
-is compiled on first use with ``torch.utils.cpp_extension`` (about 40 s, then cached in
+is compiled on first use with ``torch.utils.cpp_extension`` (about 70 s on 2 cores, then cached in
 ``$TORCH_EXTENSIONS_DIR`` or ``~/.cache/torch_extensions``). Memory is the image, the tile
 lists and one gradient buffer per thread: no per-pair storage, so it stays bounded at any size.
 """
@@ -50,7 +50,7 @@ def extension():
 
     # torch builds with ninja; the pip-installed one sits beside this interpreter.
     os.environ["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
-    print("eve3d: loading the C++ rasteriser (compiled once, about 40 s, then cached)", file=sys.stderr)
+    print("eve3d: loading the C++ rasteriser (compiled once, about 70 s on 2 cores, then cached)", file=sys.stderr)
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") else []
     return load(name=f"eve3d_rasterize_{build_tag()}", sources=[str(p) for p in SOURCES],
                 extra_cflags=["-O3", *native, "-fno-trapping-math", "-fopenmp"], extra_ldflags=["-fopenmp"], verbose=False)
