@@ -27,8 +27,8 @@ from eve3d.core.fileio import atomic_path
 from eve3d.core.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TONE_FILE, TRAIN_METRICS_FILE, TRAINING
 from eve3d.core.photos import scene_tone_curve
 from eve3d.core.scene import Scene
-from eve3d.core.timing import phase
 from eve3d.core.settings import PretrainSettings, RenderSettings
+from eve3d.core.timing import phase
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import render_model
 from eve3d.gaussians.training import LossTerms, Trainer, initial_points

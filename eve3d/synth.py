@@ -32,11 +32,11 @@ from tqdm import tqdm
 from eve3d.core.fileio import atomic_dir, write_image
 from eve3d.core.io.colmap import triangulate_known_poses, write_colmap
 from eve3d.core.io.loader import METADATA
-from eve3d.core.timing import phase
 from eve3d.core.raycast import MeshRaycaster, seen_by
 from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import SfmSettings, SyntheticSettings
 from eve3d.core.surface import sample_surface
+from eve3d.core.timing import phase
 
 LIGHT = np.array([0.3, -0.5, 1.0]) / np.linalg.norm([0.3, -0.5, 1.0])
 

@@ -19,8 +19,8 @@ def mirrored(matcher: Callable[[np.ndarray, np.ndarray], np.ndarray], left: np.n
 
 def onnx_session(path: Path):
     """An onnxruntime session of the model at ``path``: its CUDA provider where onnxruntime has
-    one, and on the CPU as many threads as ``OMP_NUM_THREADS`` says (the workflow's share of
-    the cores for the job; onnxruntime's default, every core, otherwise). Raises what
+    one, and on the CPU as many threads as ``OMP_NUM_THREADS`` says (the threads the workflow
+    gives the job; onnxruntime's default, every core, otherwise). Raises what
     onnxruntime raises for a file it cannot load."""
     import os
 

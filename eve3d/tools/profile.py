@@ -20,7 +20,6 @@ _STAMP = re.compile(r"^\[(\w{3} \w{3} +\d+ \d\d:\d\d:\d\d \d{4})\]$")
 _RULE = re.compile(r"^(?:local)?rule (\w+):$", re.MULTILINE)
 _FIELD = re.compile(r"^    (\w+): (.*)$")
 _FINISHED = re.compile(r"^Finished jobid: (\d+)")
-_FAILED = re.compile(r"^Error in rule \w+:")
 _WORKDIR = re.compile(r"^  Working directory: (.+)$")
 _ELAPSED = re.compile(r"^Elapsed time: (\d+):(\d\d):(\d\d(?:\.\d+)?)")
 TOP_PHASES = 4
@@ -88,17 +87,34 @@ def read_run(log: Path) -> Run:
         lines = log.read_text(errors="replace").splitlines()
     except OSError as e:
         raise Eve3dError(f"{log}: cannot read the Snakemake log ({e.strerror})") from None
+    jobs = log_jobs(lines)
+    if not jobs:
+        raise Eve3dError(f"{log}: no job in this Snakemake log (a dry run, or nothing to do)")
     workdir, cores, elapsed = log.parent.parent.parent, 1, None
-    first: datetime | None = None
-    now = 0.0
-    jobs: dict[int, Job] = {}
-    current: Job | None = None
     for line in lines:
         if m := _WORKDIR.match(line):
             workdir = Path(m.group(1))
         elif line.startswith("Provided cores: "):
             cores = int(line.split()[-1])
-        elif m := _STAMP.match(line):
+        elif m := _ELAPSED.match(line):
+            elapsed = int(m.group(1)) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
+    for job in jobs:
+        job.phases = job_phases(workdir / job.log) if job.log else {}
+        job.cpu = benchmark_cpu(workdir / job.benchmark) if job.benchmark else None
+    ends = [j.ended for j in jobs if j.ended is not None]
+    return Run(log, jobs, elapsed or max(ends, default=max(j.started for j in jobs)), cores)
+
+
+def log_jobs(lines: list[str]) -> list[Job]:
+    """The jobs that Snakemake's log of a run, or a dry run's output, lists (the target ``all``
+    left out: it does no work), by start: rule, wildcards, threads, log and benchmark files,
+    and from a run's time stamps when each started and finished (seconds from the first)."""
+    first: datetime | None = None
+    now = 0.0
+    jobs: dict[int, Job] = {}
+    current: Job | None = None
+    for line in lines:
+        if m := _STAMP.match(line):
             stamp = datetime.strptime(" ".join(m.group(1).split()), "%a %b %d %H:%M:%S %Y")
             first = first or stamp
             now = (stamp - first).total_seconds()
@@ -119,16 +135,7 @@ def read_run(log: Path) -> Run:
         elif m := _FINISHED.match(line):
             if (job := jobs.get(int(m.group(1)))) is not None:
                 job.ended = now
-        elif m := _ELAPSED.match(line):
-            elapsed = int(m.group(1)) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
-    if not jobs:
-        raise Eve3dError(f"{log}: no job in this Snakemake log (a dry run, or nothing to do)")
-    done = [j for j in jobs.values() if j.rule != "all"]  # "all" is a target, not work
-    for job in done:
-        job.phases = job_phases(workdir / job.log) if job.log else {}
-        job.cpu = benchmark_cpu(workdir / job.benchmark) if job.benchmark else None
-    ends = [j.ended for j in done if j.ended is not None]
-    return Run(log, sorted(done, key=lambda j: (j.started, j.jobid)), elapsed or max(ends, default=now), cores)
+    return sorted((j for j in jobs.values() if j.rule != "all"), key=lambda j: (j.started, j.jobid))
 
 
 def job_phases(log: Path) -> dict[str, float]:

@@ -15,6 +15,7 @@ from eve3d.core.io import load_scene
 from eve3d.core.io.colmap import write_colmap
 from eve3d.core.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout
 from eve3d.synth import generate
+from eve3d.tools.profile import log_jobs, read_run
 from eve3d.tools.standin import dtu_scale_mat, write_dtu_layout
 from tests.helpers import REPO, run_cli, snakemake, write_config
 
@@ -95,20 +96,6 @@ def test_default_config_dry_run_lists_every_stage(tmp_path):
         assert rule in r.stdout + r.stderr
 
 
-def job_threads(dry_run: str) -> dict[str, int]:
-    """Threads per job title ("joint synthetic-object pgsr") in ``snakemake -n``'s output."""
-    threads, rule, title = {}, None, None
-    for line in dry_run.splitlines():
-        if m := re.match(r"(?:local)?rule (\w+):", line):
-            rule = m.group(1)
-        elif rule and (m := re.match(r"\s+wildcards: (.*)", line)):
-            title = " ".join([rule, *(v.split("=")[1] for v in m.group(1).split(", "))])
-            threads[title] = 1  # Snakemake prints no threads line for one thread
-        elif title and (m := re.match(r"\s+threads: (\d+)", line)):
-            threads[title] = int(m.group(1))
-    return threads
-
-
 @pytest.mark.parametrize("cores", [2, 4])
 def test_training_and_network_jobs_take_every_core(tmp_path, cores):
     """A training job, and a stereo network's, takes every core: on 2 cores, one-thread jobs
@@ -117,10 +104,10 @@ def test_training_and_network_jobs_take_every_core(tmp_path, cores):
                        scenes={"s": {"synthetic": {"kind": "object"}}})
     r = snakemake("-n", f"-c{cores}", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
-    threads = job_threads(r.stdout + r.stderr)
-    every_core = ("pretrain s", "joint s pgsr", "joint s eve3d", "stereo_depth s hitnet")
+    threads = {job.title: job.threads for job in log_jobs((r.stdout + r.stderr).splitlines())}
+    every_core = ("pretrain s", "joint s pgsr", "joint s eve3d", "stereo-depth s hitnet")
     assert {t: threads[t] for t in every_core} == dict.fromkeys(every_core, cores), threads
-    assert threads["stereo_render s"] == 1 and threads["mesh s eve3d"] == 1
+    assert threads["stereo-render s"] == 1 and threads["mesh s eve3d"] == 1
 
 
 def test_slurm_profile_dry_runs_without_slurm(tmp_path):
@@ -229,8 +216,6 @@ def test_tiny_training_run(tmp_path):
 def assert_profile(log: str) -> None:
     """``eve3d profile`` of a real run: every stage's job printed its phases, which add up to
     its wall time within Snakemake's one-second stamps, and the training jobs' steps are there."""
-    from eve3d.tools.profile import read_run
-
     run = read_run(Path(log))
     stages = [j for j in run.jobs if j.rule not in ("summary", "report_pages", "check_ground_truth")]
     assert stages and all(j.phases for j in stages), [j.title for j in stages if not j.phases]

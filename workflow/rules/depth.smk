@@ -45,6 +45,5 @@ rule stereo_depth:
     conda:
         CONDA_ENV
     shell:
-        "OMP_NUM_THREADS={threads} {EVE3D} stereo-depth --backend {wildcards.backend} --scene {input.scene} --out {output} {params.args}"
-        " --config {params.config}"
-        " > {log} 2>&1"
+        "OMP_NUM_THREADS={threads} {EVE3D} stereo-depth --backend {wildcards.backend} --scene {input.scene}"
+        " --out {output} {params.args} --config {params.config} > {log} 2>&1"
