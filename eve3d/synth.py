@@ -379,21 +379,24 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
     offsets = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
     with atomic_dir(out) as tmp:
         for cam in tqdm(cams, desc=f"synth {kind}", unit="view"):
-            hits = caster.cast(cam, offsets)
-            rgb = shade(parts, hits, seed).mean(axis=0)
+            with phase("render views"):
+                hits = caster.cast(cam, offsets)
+                rgb = shade(parts, hits, seed).mean(axis=0)
+                if spec.scene_kind == "object":
+                    fg = np.isin(caster.cast(cam).geometry, [k for k, p in enumerate(parts) if p.foreground])
             write_image(tmp / "images" / cam.name, np.clip(rgb * 255 + 0.5, 0, 255).astype(np.uint8))
             if spec.scene_kind == "object":
-                fg = np.isin(caster.cast(cam).geometry, [k for k, p in enumerate(parts) if p.foreground])
                 write_image(tmp / "masks" / cam.name, (fg * 255).astype(np.uint8))
         mesh = o3d.geometry.TriangleMesh()
         for part in parts:
             mesh += part.mesh
-        if surface_samples:
-            pts, pviews = surface_points(mesh, cams, caster, surface_samples, rng)
-            colors = point_colors(parts, caster, cams, pts, pviews, seed)
-        else:
-            pts, colors, pviews = triangulate_known_poses(cams, tmp / "images", tmp / "sfm",
-                                                          SfmSettings(matcher=matcher, seed=seed))
+        with phase("sparse points"):
+            if surface_samples:
+                pts, pviews = surface_points(mesh, cams, caster, surface_samples, rng)
+                colors = point_colors(parts, caster, cams, pts, pviews, seed)
+            else:
+                pts, colors, pviews = triangulate_known_poses(cams, tmp / "images", tmp / "sfm",
+                                                              SfmSettings(matcher=matcher, seed=seed))
         scene = Scene(root=out, cameras=cams, points=pts, point_colors=colors, point_views=pviews)
         write_colmap(scene, tmp / ("gt/sparse/0" if images_only else "sparse/0"))
         (tmp / "gt").mkdir(exist_ok=True)
