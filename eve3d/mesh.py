@@ -36,7 +36,7 @@ time. A block is about 10 KB of grid and 8 KB of marching-cubes buffers, so a gr
 
 def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
     """Yield (camera at the map's size, depth with low-confidence pixels zeroed) for every
-    view, one map read at a time (its depth and confidence only: normals are not decompressed)."""
+    view, one map read at a time (its depth and confidence only, not its normals)."""
     for cam in scene.cameras:
         path = depth_dir / f"{cam.view_id}.npz"
         if not path.exists():

@@ -105,7 +105,7 @@ def _weak_figures(errors: list[np.ndarray], weak: int, known: int) -> dict:
 
 
 MAP_KEYS = ("depth", "confidence")
-"""What the scores read of a map file (its normals are not decompressed)."""
+"""What the scores read of a map file (not its normals)."""
 
 
 def median(values: np.ndarray) -> float:
