@@ -304,7 +304,7 @@ def test_disk_full_while_writing(tiny_dataset, tmp_path, capsys, monkeypatch):
         file.write(b"half a depth map")
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(np, "savez_compressed", disk_full)
+    monkeypatch.setattr(np, "savez", disk_full)
     fails(capsys, "stereo-depth", "--scene", tiny_dataset, "--backend", "oracle", "--out", out, "--no-preview",
           expect=(f"{out}: cannot write it, the disk is full (No space left on device); the earlier one is kept as it "
                   "was",))
