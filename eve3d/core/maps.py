@@ -1,7 +1,7 @@
 """Per-view maps (depth, confidence, normals) as float32 ``.npz`` with PNG previews.
 
-The ``.npz`` files are not compressed: zlib took 3–5 s for one 1.9-MP photo's maps and saved
-15 % of their size, which made writing them most of an export after training (issue 53)."""
+The ``.npz`` files are not compressed: zlib made writing a photo-sized view's maps several
+times slower for a small saving in size (docs/development.md, "A capture from photos alone")."""
 from __future__ import annotations
 
 from collections.abc import Sequence
