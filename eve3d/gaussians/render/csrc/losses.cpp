@@ -99,32 +99,33 @@ void ssim_grad(const T* m, const T* x, const T* y, int64_t N, T scale, T* g) {
 
 }  // namespace
 
-std::vector<torch::Tensor> ssim_forward(torch::Tensor a, torch::Tensor b, int64_t window, double sigma) {
+std::vector<at::Tensor> ssim_forward(at::Tensor a, at::Tensor b, int64_t window, double sigma) {
     TORCH_CHECK(a.device().is_cpu() && b.device().is_cpu(), "ssim: CPU tensors");
     TORCH_CHECK(a.dim() == 3 && a.sizes() == b.sizes(), "ssim: two (H, W, C) images of one size, got ", a.sizes(),
                 " and ", b.sizes());
     const int64_t H = a.size(0), W = a.size(1), C = a.size(2), HW = H * W;
     // planar: x, y, x^2, y^2, xy of every channel; then their blurs
     auto x = a.permute({2, 0, 1}).contiguous(), y = b.permute({2, 0, 1}).contiguous().to(a.scalar_type());
-    auto maps = torch::cat({x, y, x * x, y * y, x * y}).contiguous();
-    auto derivs = torch::empty({3, C, H, W}, a.options());  // d SSIM / d mu_x, d E[x^2], d E[xy]
+    const std::vector<at::Tensor> planes = {x, y, x.mul(x), y.mul(y), x.mul(y)};
+    auto maps = at::cat(planes).contiguous();
+    auto derivs = at::empty({3, C, H, W}, a.options());  // d SSIM / d mu_x, d E[x^2], d E[xy]
     double total = 0;
     AT_DISPATCH_FLOATING_TYPES(a.scalar_type(), "eve3d_ssim_forward", [&] {
         scalar_t* m = maps.data_ptr<scalar_t>();
         blur(m, 5 * C, H, W, gaussian_taps<scalar_t>(window, sigma));
         total = ssim_map(m, C * HW, derivs.data_ptr<scalar_t>());
     });
-    return {torch::tensor(total / (double)(C * HW), a.options()), derivs};
+    return {at::scalar_tensor(total / (double)(C * HW), a.options()), derivs};
 }
 
-torch::Tensor ssim_backward(torch::Tensor a, torch::Tensor b, torch::Tensor derivs, int64_t window, double sigma,
+at::Tensor ssim_backward(at::Tensor a, at::Tensor b, at::Tensor derivs, int64_t window, double sigma,
                             double grad_out) {
     TORCH_CHECK(a.dim() == 3 && a.sizes() == b.sizes() && derivs.size(0) == 3 && derivs.numel() == 3 * a.numel(),
                 "ssim backward: images (H, W, C) and derivatives (3, C, H, W) of one size");
     const int64_t H = a.size(0), W = a.size(1), C = a.size(2), HW = H * W;
     auto x = a.permute({2, 0, 1}).contiguous(), y = b.permute({2, 0, 1}).contiguous().to(a.scalar_type());
     auto blurred = derivs.clone();
-    auto grad = torch::empty({C, H, W}, a.options());
+    auto grad = at::empty({C, H, W}, a.options());
     AT_DISPATCH_FLOATING_TYPES(a.scalar_type(), "eve3d_ssim_backward", [&] {
         scalar_t* m = blurred.data_ptr<scalar_t>();
         blur(m, 3 * C, H, W, gaussian_taps<scalar_t>(window, sigma));
@@ -215,7 +216,7 @@ void depth_normal_backward_impl(const T* depth, const T* rays, int64_t H, int64_
 
 namespace {
 
-void check_depth_rays(const torch::Tensor& depth, const torch::Tensor& rays, int64_t span) {
+void check_depth_rays(const at::Tensor& depth, const at::Tensor& rays, int64_t span) {
     TORCH_CHECK(depth.device().is_cpu() && rays.device().is_cpu(), "depth_to_normal: CPU tensors");
     TORCH_CHECK(depth.dim() == 2 && rays.dim() == 3 && rays.size(0) == depth.size(0) &&
                     rays.size(1) == depth.size(1) && rays.size(2) == 3,
@@ -226,10 +227,10 @@ void check_depth_rays(const torch::Tensor& depth, const torch::Tensor& rays, int
 
 }  // namespace
 
-torch::Tensor depth_normal_forward(torch::Tensor depth, torch::Tensor rays, int64_t span) {
+at::Tensor depth_normal_forward(at::Tensor depth, at::Tensor rays, int64_t span) {
     check_depth_rays(depth, rays, span);
     depth = depth.contiguous(), rays = rays.to(depth.scalar_type()).contiguous();
-    auto normal = torch::empty({depth.size(0), depth.size(1), 3}, depth.options());
+    auto normal = at::empty({depth.size(0), depth.size(1), 3}, depth.options());
     AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "eve3d_depth_normal_forward", [&] {
         depth_normal_impl(depth.data_ptr<scalar_t>(), rays.data_ptr<scalar_t>(), depth.size(0), depth.size(1), span,
                           normal.data_ptr<scalar_t>());
@@ -237,13 +238,13 @@ torch::Tensor depth_normal_forward(torch::Tensor depth, torch::Tensor rays, int6
     return normal;
 }
 
-torch::Tensor depth_normal_backward(torch::Tensor depth, torch::Tensor rays, int64_t span, torch::Tensor grad_normal) {
+at::Tensor depth_normal_backward(at::Tensor depth, at::Tensor rays, int64_t span, at::Tensor grad_normal) {
     check_depth_rays(depth, rays, span);
     TORCH_CHECK(grad_normal.sizes() == rays.sizes(), "depth_to_normal: gradient of shape ", grad_normal.sizes());
     depth = depth.contiguous(), rays = rays.to(depth.scalar_type()).contiguous();
     grad_normal = grad_normal.contiguous();
-    auto g_dx = torch::empty_like(grad_normal), g_dy = torch::empty_like(grad_normal);
-    auto g_depth = torch::empty_like(depth);
+    auto g_dx = at::empty_like(grad_normal), g_dy = at::empty_like(grad_normal);
+    auto g_depth = at::empty_like(depth);
     AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "eve3d_depth_normal_backward", [&] {
         depth_normal_backward_impl(depth.data_ptr<scalar_t>(), rays.data_ptr<scalar_t>(), depth.size(0),
                                    depth.size(1), span, grad_normal.data_ptr<scalar_t>(), g_dx.data_ptr<scalar_t>(),

@@ -25,7 +25,7 @@ struct Cam {
 };
 
 template <typename T>
-Cam<T> make_cam(const torch::Tensor& R, const torch::Tensor& t, double fx, double fy, double cx, double cy,
+Cam<T> make_cam(const at::Tensor& R, const at::Tensor& t, double fx, double fy, double cx, double cy,
                 int64_t width, int64_t height, double near, double far) {
     Cam<T> c;
     const auto Rc = R.contiguous(), tc = t.contiguous();
@@ -277,8 +277,8 @@ void backward_impl(int64_t n, const T* means, const T* quats, const T* scales, c
     }
 }
 
-void check_inputs(const torch::Tensor& means, const torch::Tensor& quats, const torch::Tensor& scales,
-                  const torch::Tensor& opacities, const torch::Tensor& R, const torch::Tensor& t) {
+void check_inputs(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
+                  const at::Tensor& opacities, const at::Tensor& R, const at::Tensor& t) {
     const int64_t n = means.size(0);
     TORCH_CHECK(means.dim() == 2 && means.size(1) == 3, "means must be (N, 3)");
     TORCH_CHECK(quats.dim() == 2 && quats.size(0) == n && quats.size(1) == 4, "quats must be (N, 4)");
@@ -294,8 +294,8 @@ void check_inputs(const torch::Tensor& means, const torch::Tensor& quats, const 
 // means2d (N, 2), conics (N, 3), depths (N,), radii (N, 2) int32, compensation (N,),
 // camera-space normals (N, 3), plane distances (N,) and the opacities the rasteriser uses
 // (× compensation when antialiased) (N,).
-std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                           torch::Tensor opacities, torch::Tensor R, torch::Tensor t, double fx,
+std::vector<at::Tensor> project_forward(at::Tensor means, at::Tensor quats, at::Tensor scales,
+                                           at::Tensor opacities, at::Tensor R, at::Tensor t, double fx,
                                            double fy, double cx, double cy, int64_t width, int64_t height,
                                            double near, double far, bool antialiased) {
     check_inputs(means, quats, scales, opacities, R, t);
@@ -303,11 +303,11 @@ std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor qu
     opacities = opacities.contiguous();
     const int64_t n = means.size(0);
     const auto opts = means.options();
-    auto means2d = torch::empty({n, 2}, opts), conics = torch::empty({n, 3}, opts);
-    auto depths = torch::empty({n}, opts), comp = torch::empty({n}, opts);
-    auto normals = torch::empty({n, 3}, opts), distances = torch::empty({n}, opts);
-    auto opac_out = torch::empty({n}, opts);
-    auto radii = torch::empty({n, 2}, opts.dtype(torch::kInt32));
+    auto means2d = at::empty({n, 2}, opts), conics = at::empty({n, 3}, opts);
+    auto depths = at::empty({n}, opts), comp = at::empty({n}, opts);
+    auto normals = at::empty({n, 3}, opts), distances = at::empty({n}, opts);
+    auto opac_out = at::empty({n}, opts);
+    auto radii = at::empty({n, 2}, opts.dtype(at::kInt));
     AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "eve3d_project_forward", [&] {
         const auto C = make_cam<scalar_t>(R, t, fx, fy, cx, cy, width, height, near, far);
         forward_impl<scalar_t>(n, means.data_ptr<scalar_t>(), quats.data_ptr<scalar_t>(),
@@ -322,26 +322,26 @@ std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor qu
 
 // Gradients of means (N, 3), quats (N, 4), scales (N, 3) and opacities (N,) from those of
 // project_forward's differentiable outputs.
-std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                            torch::Tensor opacities, torch::Tensor R, torch::Tensor t, double fx,
+std::vector<at::Tensor> project_backward(at::Tensor means, at::Tensor quats, at::Tensor scales,
+                                            at::Tensor opacities, at::Tensor R, at::Tensor t, double fx,
                                             double fy, double cx, double cy, int64_t width, int64_t height,
-                                            double near, bool antialiased, torch::Tensor grad_means2d,
-                                            torch::Tensor grad_conics, torch::Tensor grad_depths,
-                                            torch::Tensor grad_compensation, torch::Tensor grad_normals,
-                                            torch::Tensor grad_distances, torch::Tensor grad_opacities) {
+                                            double near, bool antialiased, at::Tensor grad_means2d,
+                                            at::Tensor grad_conics, at::Tensor grad_depths,
+                                            at::Tensor grad_compensation, at::Tensor grad_normals,
+                                            at::Tensor grad_distances, at::Tensor grad_opacities) {
     check_inputs(means, quats, scales, opacities, R, t);
     means = means.contiguous(), quats = quats.contiguous(), scales = scales.contiguous();
     opacities = opacities.contiguous();
     const int64_t n = means.size(0);
     // Incoming gradients are often slices of a wider one (the features' columns).
-    std::vector<torch::Tensor> grads;
+    std::vector<at::Tensor> grads;
     for (const auto& g : {grad_means2d, grad_conics, grad_depths, grad_compensation, grad_normals, grad_distances,
                           grad_opacities}) {
         TORCH_CHECK(g.scalar_type() == means.scalar_type() && g.size(0) == n, "gradient of the wrong dtype or size");
         grads.push_back(g.contiguous());
     }
-    auto g_means = torch::empty_like(means), g_quats = torch::empty_like(quats);
-    auto g_scales = torch::empty_like(scales), g_opac = torch::empty_like(opacities);
+    auto g_means = at::empty_like(means), g_quats = at::empty_like(quats);
+    auto g_scales = at::empty_like(scales), g_opac = at::empty_like(opacities);
     AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "eve3d_project_backward", [&] {
         const auto C = make_cam<scalar_t>(R, t, fx, fy, cx, cy, width, height, near, 0.0);
         backward_impl<scalar_t>(n, means.data_ptr<scalar_t>(), quats.data_ptr<scalar_t>(),

@@ -4,12 +4,7 @@
 // Gaussians arrive sorted front to back, so binning them in order keeps every tile's list
 // depth-sorted. The backward pass walks each pixel's list back to front, recovering T by
 // division as gsplat does, and accumulates gradients in per-thread buffers.
-#include <torch/python.h>  // the bindings; torch/extension.h (all of torch's C++ API) took 51 s to compile, this 28 s
-#include <torch/types.h>
-
-#include "projection.h"
-#include "roundtrip.h"
-#include "losses.h"
+#include "rasterize.h"
 
 #include <algorithm>
 #include <cmath>
@@ -47,7 +42,7 @@ int thread_id() {
 
 // Per-tile lists of Gaussian indices (CSR): offsets (tiles + 1) and ids. boxes (V, 4) belong to
 // the visible Gaussians in depth order; ids are their indices among all N (visible[rank]).
-std::vector<torch::Tensor> bin_tiles(const torch::Tensor& boxes, const torch::Tensor& visible, int64_t width,
+std::vector<at::Tensor> bin_tiles(const at::Tensor& boxes, const at::Tensor& visible, int64_t width,
                                      int64_t height) {
     const int64_t tiles_x = (width + TILE - 1) / TILE, tiles_y = (height + TILE - 1) / TILE;
     const int64_t n = boxes.size(0);
@@ -61,8 +56,8 @@ std::vector<torch::Tensor> bin_tiles(const torch::Tensor& boxes, const torch::Te
             for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) counts[ty * tiles_x + tx + 1]++;
     }
     for (size_t i = 1; i < counts.size(); ++i) counts[i] += counts[i - 1];
-    auto offsets = torch::from_blob(counts.data(), {(int64_t)counts.size()}, torch::kInt64).clone();
-    auto ids = torch::empty({counts.back()}, torch::kInt64);
+    auto offsets = at::from_blob(counts.data(), {(int64_t)counts.size()}, at::kLong).clone();
+    auto ids = at::empty({counts.back()}, at::kLong);
     int64_t* out = ids.data_ptr<int64_t>();
     std::vector<int64_t> fill(counts.begin(), counts.end() - 1);
     for (int64_t g = 0; g < n; ++g) {
@@ -387,13 +382,13 @@ void backward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, cons
 
 // Returns image (H*W, C), final transmittance (H*W), per-pixel count of list entries
 // consumed (H*W, int32), tile offsets, tile ids and the number of pairs composited.
-std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
-                                   torch::Tensor feats, torch::Tensor boxes, torch::Tensor visible, int64_t width,
+std::vector<at::Tensor> forward(at::Tensor means2d, at::Tensor conics, at::Tensor opac,
+                                   at::Tensor feats, at::Tensor boxes, at::Tensor visible, int64_t width,
                                    int64_t height) {
     auto bins = bin_tiles(boxes, visible, width, height);
-    auto image = torch::zeros({height * width, feats.size(1)}, feats.options());
-    auto final_t = torch::ones({height * width}, feats.options());
-    auto consumed = torch::zeros({height * width}, torch::kInt32);
+    auto image = at::zeros({height * width, feats.size(1)}, feats.options());
+    auto final_t = at::ones({height * width}, feats.options());
+    auto consumed = at::zeros({height * width}, at::kInt);
     int64_t n_pairs = 0;
     AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "eve3d_rasterize_forward", [&] {
         n_pairs = forward_impl<scalar_t>(
@@ -402,17 +397,17 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics, 
             bins[0].size(0) - 1, width, height, image.data_ptr<scalar_t>(), final_t.data_ptr<scalar_t>(),
             consumed.data_ptr<int32_t>());
     });
-    return {image, final_t, consumed, bins[0], bins[1], torch::tensor(n_pairs)};
+    return {image, final_t, consumed, bins[0], bins[1], at::scalar_tensor(n_pairs, at::kLong)};
 }
 
 // Gradients for means2d (V, 2), conics (V, 3), opacities (V), features (V, C) and the
 // per-pixel absolute means2d gradients summed per Gaussian (V, 2).
-std::vector<torch::Tensor> backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
-                                    torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids,
-                                    torch::Tensor final_t, torch::Tensor consumed, torch::Tensor grad_image,
-                                    torch::Tensor grad_alpha, int64_t width, int64_t height) {
+std::vector<at::Tensor> backward(at::Tensor means2d, at::Tensor conics, at::Tensor opac,
+                                    at::Tensor feats, at::Tensor offsets, at::Tensor ids,
+                                    at::Tensor final_t, at::Tensor consumed, at::Tensor grad_image,
+                                    at::Tensor grad_alpha, int64_t width, int64_t height) {
     const int64_t C = feats.size(1), V = feats.size(0);
-    auto buffers = torch::zeros({max_threads(), V, 8 + C}, feats.options());
+    auto buffers = at::zeros({max_threads(), V, 8 + C}, feats.options());
     AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "eve3d_rasterize_backward", [&] {
         backward_impl<scalar_t>(
             means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), opac.data_ptr<scalar_t>(),
@@ -466,9 +461,9 @@ void sort_by_depth(const scalar_t* depths, std::vector<int64_t>& idx) {
 // eve3d.gaussians.render.projection.front_to_back in C++: the Gaussians with a positive radius, sorted
 // stably by depth, and their inclusive pixel boxes (V, 4) x0, y0, x1, y1, computed with the
 // same float operations.
-std::vector<torch::Tensor> front_to_back(torch::Tensor radii, torch::Tensor depths, torch::Tensor means2d,
+std::vector<at::Tensor> front_to_back(at::Tensor radii, at::Tensor depths, at::Tensor means2d,
                                          int64_t width, int64_t height) {
-    radii = radii.to(torch::kInt32).contiguous();
+    radii = radii.to(at::kInt).contiguous();
     means2d = means2d.contiguous();
     depths = depths.to(means2d.scalar_type()).contiguous();
     const int64_t n = radii.size(0);
@@ -477,14 +472,14 @@ std::vector<torch::Tensor> front_to_back(torch::Tensor radii, torch::Tensor dept
     idx.reserve(n);
     for (int64_t i = 0; i < n; ++i)
         if (r[2 * i] > 0 || r[2 * i + 1] > 0) idx.push_back(i);
-    torch::Tensor boxes;
+    at::Tensor boxes;
     AT_DISPATCH_FLOATING_TYPES(means2d.scalar_type(), "eve3d_front_to_back", [&] {
         if (sizeof(scalar_t) == 4)
             sort_by_depth<scalar_t, uint32_t>(depths.data_ptr<scalar_t>(), idx);
         else
             sort_by_depth<scalar_t, uint64_t>(depths.data_ptr<scalar_t>(), idx);
         const int64_t v = idx.size();
-        boxes = torch::empty({v, 4}, torch::kInt64);
+        boxes = at::empty({v, 4}, at::kLong);
         int64_t* b = boxes.data_ptr<int64_t>();
         const scalar_t* m = means2d.data_ptr<scalar_t>();
         const scalar_t half = (scalar_t)0.5, big = (scalar_t)1e12;
@@ -501,22 +496,6 @@ std::vector<torch::Tensor> front_to_back(torch::Tensor radii, torch::Tensor dept
             }
         }
     });
-    auto visible = torch::from_blob(idx.data(), {(int64_t)idx.size()}, torch::kInt64).clone();
+    auto visible = at::from_blob(idx.data(), {(int64_t)idx.size()}, at::kLong).clone();
     return {visible, boxes};
-}
-
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.def("forward", &forward, "tile-based Gaussian compositing (forward)");
-    m.def("backward", &backward, "tile-based Gaussian compositing (backward)");
-    m.def("front_to_back", &front_to_back, "visible Gaussians sorted by depth, and their pixel boxes");
-    m.def("project_forward", &project_forward, "fused EWA projection and PGSR planes (forward)");
-    m.def("project_backward", &project_backward, "fused EWA projection and PGSR planes (backward)");
-    m.def("roundtrip_forward", &roundtrip_forward, "PGSR's multi-view round trip against K neighbours (forward)");
-    m.def("roundtrip_backward", &roundtrip_backward, "PGSR's multi-view round trip (backward)");
-    m.def("ncc_forward", &ncc_forward, "1 - NCC of homography-warped patches against K neighbours (forward)");
-    m.def("ncc_backward", &ncc_backward, "1 - NCC of homography-warped patches (backward)");
-    m.def("ssim_forward", &ssim_forward, "mean SSIM, Gaussian window, zero padding (forward)");
-    m.def("ssim_backward", &ssim_backward, "mean SSIM (backward, first image)");
-    m.def("depth_normal_forward", &depth_normal_forward, "normals of a depth map (forward)");
-    m.def("depth_normal_backward", &depth_normal_backward, "normals of a depth map (backward)");
 }

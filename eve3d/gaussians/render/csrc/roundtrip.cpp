@@ -26,7 +26,7 @@ struct Pose {  // reference camera -> neighbour camera, and the neighbour's intr
 };
 
 template <typename T>
-std::vector<Pose<T>> poses(const torch::Tensor& R, const torch::Tensor& t, const torch::Tensor& intr) {
+std::vector<Pose<T>> poses(const at::Tensor& R, const at::Tensor& t, const at::Tensor& intr) {
     const int64_t K = R.size(0);
     auto Rc = R.contiguous(), tc = t.contiguous(), ic = intr.contiguous();
     const T *r = Rc.data_ptr<T>(), *tt = tc.data_ptr<T>(), *in = ic.data_ptr<T>();
@@ -342,14 +342,14 @@ void ncc_backward_impl(const NccArgs<T>& g, const std::vector<Pose<T>>& P, const
 
 }  // namespace
 
-std::vector<torch::Tensor> roundtrip_forward(torch::Tensor depth_ref, torch::Tensor depth_nbrs, torch::Tensor R,
-                                             torch::Tensor t, torch::Tensor nbr_intrinsics, double fx, double fy,
+std::vector<at::Tensor> roundtrip_forward(at::Tensor depth_ref, at::Tensor depth_nbrs, at::Tensor R,
+                                             at::Tensor t, at::Tensor nbr_intrinsics, double fx, double fy,
                                              double cx, double cy) {
     depth_ref = depth_ref.contiguous();
     depth_nbrs = depth_nbrs.contiguous();
     const int64_t K = depth_nbrs.size(0), H = depth_ref.size(0), W = depth_ref.size(1);
-    auto phi = torch::empty({K, H, W}, depth_ref.options());
-    auto defined = torch::empty({K, H, W}, depth_ref.options().dtype(torch::kBool));
+    auto phi = at::empty({K, H, W}, depth_ref.options());
+    auto defined = at::empty({K, H, W}, depth_ref.options().dtype(at::kBool));
     AT_DISPATCH_FLOATING_TYPES(depth_ref.scalar_type(), "eve3d_roundtrip_forward", [&] {
         forward_impl<scalar_t>(depth_ref.data_ptr<scalar_t>(), depth_nbrs.data_ptr<scalar_t>(),
                                poses<scalar_t>(R, t, nbr_intrinsics), fx, fy, cx, cy, W, H, depth_nbrs.size(2),
@@ -358,9 +358,9 @@ std::vector<torch::Tensor> roundtrip_forward(torch::Tensor depth_ref, torch::Ten
     return {phi, defined};
 }
 
-std::vector<torch::Tensor> roundtrip_backward(torch::Tensor depth_ref, torch::Tensor depth_nbrs, torch::Tensor R,
-                                              torch::Tensor t, torch::Tensor nbr_intrinsics, double fx, double fy,
-                                              double cx, double cy, torch::Tensor grad_phi) {
+std::vector<at::Tensor> roundtrip_backward(at::Tensor depth_ref, at::Tensor depth_nbrs, at::Tensor R,
+                                              at::Tensor t, at::Tensor nbr_intrinsics, double fx, double fy,
+                                              double cx, double cy, at::Tensor grad_phi) {
     depth_ref = depth_ref.contiguous();
     depth_nbrs = depth_nbrs.contiguous();
     grad_phi = grad_phi.contiguous();
@@ -370,8 +370,8 @@ std::vector<torch::Tensor> roundtrip_backward(torch::Tensor depth_ref, torch::Te
 #else
     const int64_t threads = 1;
 #endif
-    auto grad_ref = torch::zeros_like(depth_ref);
-    auto buffers = torch::zeros({threads, K, depth_nbrs.size(1), depth_nbrs.size(2)}, depth_nbrs.options());
+    auto grad_ref = at::zeros_like(depth_ref);
+    auto buffers = at::zeros({threads, K, depth_nbrs.size(1), depth_nbrs.size(2)}, depth_nbrs.options());
     AT_DISPATCH_FLOATING_TYPES(depth_ref.scalar_type(), "eve3d_roundtrip_backward", [&] {
         backward_impl<scalar_t>(depth_ref.data_ptr<scalar_t>(), depth_nbrs.data_ptr<scalar_t>(),
                                 poses<scalar_t>(R, t, nbr_intrinsics), fx, fy, cx, cy, W, H, depth_nbrs.size(2),
@@ -384,8 +384,8 @@ std::vector<torch::Tensor> roundtrip_backward(torch::Tensor depth_ref, torch::Te
 namespace {
 
 template <typename T>
-NccArgs<T> ncc_args(const torch::Tensor& ref_grey, const torch::Tensor& nbr_greys, const torch::Tensor& centres,
-                    const torch::Tensor& normal, const torch::Tensor& distance, double fx, double fy, double cx,
+NccArgs<T> ncc_args(const at::Tensor& ref_grey, const at::Tensor& nbr_greys, const at::Tensor& centres,
+                    const at::Tensor& normal, const at::Tensor& distance, double fx, double fy, double cx,
                     double cy, int64_t patch, double step) {
     NccArgs<T> g;
     g.ref = ref_grey.data_ptr<T>(), g.nbr = nbr_greys.data_ptr<T>(), g.centres = centres.data_ptr<T>();
@@ -405,15 +405,15 @@ void check_patch(int64_t patch) {
 // 1 - NCC (K, M) and where it is defined, for the patches around ``centres`` (K, M, 2; u, v)
 // of the reference grey image (H, W), warped into neighbour k's grey image (K, h, w) by the
 // planes (normal (K, M, 3), distance (K, M)) through the relative poses R, t and intrinsics.
-std::vector<torch::Tensor> ncc_forward(torch::Tensor ref_grey, torch::Tensor nbr_greys, torch::Tensor centres,
-                                       torch::Tensor normal, torch::Tensor distance, torch::Tensor R, torch::Tensor t,
-                                       torch::Tensor nbr_intrinsics, double fx, double fy, double cx, double cy,
+std::vector<at::Tensor> ncc_forward(at::Tensor ref_grey, at::Tensor nbr_greys, at::Tensor centres,
+                                       at::Tensor normal, at::Tensor distance, at::Tensor R, at::Tensor t,
+                                       at::Tensor nbr_intrinsics, double fx, double fy, double cx, double cy,
                                        int64_t patch, double step) {
     check_patch(patch);
     ref_grey = ref_grey.contiguous(), nbr_greys = nbr_greys.contiguous(), centres = centres.contiguous();
     normal = normal.contiguous(), distance = distance.contiguous();
-    auto loss = torch::empty({centres.size(0), centres.size(1)}, distance.options());
-    auto defined = torch::empty({centres.size(0), centres.size(1)}, distance.options().dtype(torch::kBool));
+    auto loss = at::empty({centres.size(0), centres.size(1)}, distance.options());
+    auto defined = at::empty({centres.size(0), centres.size(1)}, distance.options().dtype(at::kBool));
     AT_DISPATCH_FLOATING_TYPES(distance.scalar_type(), "eve3d_ncc_forward", [&] {
         ncc_forward_impl<scalar_t>(
             ncc_args<scalar_t>(ref_grey, nbr_greys, centres, normal, distance, fx, fy, cx, cy, patch, step),
@@ -423,14 +423,14 @@ std::vector<torch::Tensor> ncc_forward(torch::Tensor ref_grey, torch::Tensor nbr
 }
 
 // Gradients of the loss for the planes: normal (K, M, 3) and distance (K, M).
-std::vector<torch::Tensor> ncc_backward(torch::Tensor ref_grey, torch::Tensor nbr_greys, torch::Tensor centres,
-                                        torch::Tensor normal, torch::Tensor distance, torch::Tensor R,
-                                        torch::Tensor t, torch::Tensor nbr_intrinsics, double fx, double fy,
-                                        double cx, double cy, int64_t patch, double step, torch::Tensor grad_loss) {
+std::vector<at::Tensor> ncc_backward(at::Tensor ref_grey, at::Tensor nbr_greys, at::Tensor centres,
+                                        at::Tensor normal, at::Tensor distance, at::Tensor R,
+                                        at::Tensor t, at::Tensor nbr_intrinsics, double fx, double fy,
+                                        double cx, double cy, int64_t patch, double step, at::Tensor grad_loss) {
     check_patch(patch);
     ref_grey = ref_grey.contiguous(), nbr_greys = nbr_greys.contiguous(), centres = centres.contiguous();
     normal = normal.contiguous(), distance = distance.contiguous(), grad_loss = grad_loss.contiguous();
-    auto g_normal = torch::empty_like(normal), g_distance = torch::empty_like(distance);
+    auto g_normal = at::empty_like(normal), g_distance = at::empty_like(distance);
     AT_DISPATCH_FLOATING_TYPES(distance.scalar_type(), "eve3d_ncc_backward", [&] {
         ncc_backward_impl<scalar_t>(
             ncc_args<scalar_t>(ref_grey, nbr_greys, centres, normal, distance, fx, fy, cx, cy, patch, step),
