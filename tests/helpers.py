@@ -84,9 +84,9 @@ def joint_settings(**kw):
 
 HITNET_DIRS = [Path(d) for d in (os.environ.get("EVE3D_HITNET_DIR"), Path.home() / ".cache/eve3d/hitnet",
                                    REPO.parent / "shared/models/hitnet_eth3d") if d]
-"""Where HITNet's ONNX exports are looked for (data, never in the repository), as the Makefile
-looks for the demo's: ``$EVE3D_HITNET_DIR``, ``~/.cache/eve3d/hitnet``, the shared models
-folder beside the checkout. The tests that run the network read it from there only."""
+"""Where the tests look for HITNet's ONNX exports (data, never in the repository):
+``$EVE3D_HITNET_DIR``, ``~/.cache/eve3d/hitnet``, the shared models folder beside the
+checkout. The tests that run the network read it from there only."""
 
 
 def hitnet_model(size: str) -> Path:

@@ -85,6 +85,13 @@ def all_cores():
     return workflow.resource_settings.cores or 1
 
 
+def training_threads():
+    """Threads of a training job and of a stereo network's job: the run's cores over
+    `training_jobs`, the jobs meant to run side by side (the demo: pgsr beside the chain
+    pretrain → stereo → eve3d; docs/development.md, "Where a run's time goes")."""
+    return max(1, all_cores() // config["training_jobs"])
+
+
 def device_resources(device):
     """The resources of a job that runs on ``device(wildcards)``: "gpu" or "cpu"."""
     resources = {"gpu": lambda wc: int(device(wc) == "gpu")}

@@ -15,6 +15,7 @@ rule stereo_render:
         LAYOUT.log("{scene}", "stereo_render"),
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_render"),
+    priority: 2  # on the longest chain (workflow/rules/train.smk)
     resources:
         **ON_GAUSSIAN_DEVICE,
     conda:
@@ -38,8 +39,9 @@ rule stereo_depth:
         LAYOUT.log("{scene}", "stereo_depth", "{backend}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "stereo_depth", "{backend}"),
-    # a network (onnxruntime) every core, as a training job; a matcher one
-    threads: lambda wc: all_cores() if PRIOR_BACKENDS[wc.backend].device == "gpu" else 1
+    # a network (onnxruntime) a training job's share of the cores; a matcher one
+    threads: lambda wc: training_threads() if PRIOR_BACKENDS[wc.backend].device == "gpu" else 1
+    priority: 2  # on the longest chain (workflow/rules/train.smk)
     resources:
         **device_resources(lambda wc: PRIOR_BACKENDS[wc.backend].device),
     conda:

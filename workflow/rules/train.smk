@@ -1,5 +1,8 @@
-# Gaussian training: the pretrain stage and the joint stage of each trained method. Each job
-# takes every core it is given (OpenMP in the CPU rasteriser); on a GPU the cores matter less.
+# Gaussian training: the pretrain stage and the joint stage of each trained method (OpenMP in
+# the CPU rasteriser; on a GPU the cores matter less). The chain pretrain → stereo → a method
+# with priors is the longest, so its jobs start first: the pretrain on every core, before any
+# job that would fit beside it; the stereo jobs next (priority 2), then the joint stages (1),
+# each on its share of the cores (training_threads), with the meshes and scores after.
 
 
 rule pretrain:
@@ -17,9 +20,10 @@ rule pretrain:
         LAYOUT.log("{scene}", "pretrain"),
     benchmark:
         LAYOUT.benchmark("{scene}", "pretrain"),
-    # Every core, not a share: on 2 cores one-thread jobs side by side made the demo slower
-    # (docs/development.md, "Where a run's time goes")
     threads: all_cores()
+    # Snakemake sums the priorities of the jobs it starts together: 10 outweighs any two
+    # others (stereo 2, joint 1), which would otherwise take the cores first
+    priority: 10
     resources:
         **ON_GAUSSIAN_DEVICE,
     conda:
@@ -46,7 +50,8 @@ rule joint:
         LAYOUT.log("{scene}", "joint", "{method}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "joint", "{method}"),
-    threads: all_cores()
+    threads: training_threads()
+    priority: 1
     resources:
         **device_resources(lambda wc: METHOD[wc.method].device),
     conda:
