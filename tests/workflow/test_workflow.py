@@ -96,17 +96,19 @@ def test_default_config_dry_run_lists_every_stage(tmp_path):
         assert rule in r.stdout + r.stderr
 
 
-@pytest.mark.parametrize("cores", [2, 4])
-def test_training_and_network_jobs_take_every_core(tmp_path, cores):
-    """A training job, and a stereo network's, takes every core: on 2 cores, one-thread jobs
-    side by side made the demo slower than two-thread jobs in turn (docs/development.md)."""
+@pytest.mark.parametrize("cores, training_jobs", [(2, 1), (4, 1), (2, 2), (4, 2)])
+def test_training_and_network_jobs_take_their_share_of_the_cores(tmp_path, cores, training_jobs):
+    """The pretrain takes every core (it starts first); a joint stage's job and a stereo
+    network's take the cores over ``training_jobs``: every core by default, one each on 2
+    cores in the demo, where pgsr trains beside the chain pretrain → stereo → eve3d."""
     cfg = write_config(tmp_path, methods=["pgsr", "eve3d"], stereo={"backend": "hitnet"},
-                       scenes={"s": {"synthetic": {"kind": "object"}}})
+                       scenes={"s": {"synthetic": {"kind": "object"}}}, training_jobs=training_jobs)
     r = snakemake("-n", f"-c{cores}", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
     threads = {job.title: job.threads for job in log_jobs((r.stdout + r.stderr).splitlines())}
-    every_core = ("pretrain s", "joint s pgsr", "joint s eve3d", "stereo-depth s hitnet")
-    assert {t: threads[t] for t in every_core} == dict.fromkeys(every_core, cores), threads
+    shared = ("joint s pgsr", "joint s eve3d", "stereo-depth s hitnet")
+    assert threads["pretrain s"] == cores
+    assert {t: threads[t] for t in shared} == dict.fromkeys(shared, cores // training_jobs), threads
     assert threads["stereo-render s"] == 1 and threads["mesh s eve3d"] == 1
 
 
