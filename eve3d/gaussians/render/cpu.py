@@ -23,7 +23,7 @@ from eve3d.core.scene import Eve3dError
 from eve3d.gaussians.render.projection import CameraTensors, Projected
 
 SOURCES = [Path(__file__).parent / "csrc" / name
-           for name in ("rasterize.cpp", "projection.cpp", "roundtrip.cpp", "losses.cpp", "ops.cpp")]
+           for name in ("rasterize.cpp", "projection.cpp", "roundtrip.cpp", "losses.cpp", "ops.cpp", "bindings.cpp")]
 
 
 def build_tag() -> str:
@@ -46,13 +46,14 @@ def build_tag() -> str:
 
 @functools.lru_cache(maxsize=1)
 def extension():
-    """The compiled kernels, ``torch.ops.eve3d`` (``csrc/ops.cpp`` registers them as torch
-    operators); raises if they cannot be built (no compiler, no OpenMP)."""
+    """The compiled kernels as torch operators, ``torch.ops.eve3d`` (``csrc/kernels.h``: the
+    kernels on plain arrays; ``csrc/ops.cpp``: their tensor side; ``csrc/bindings.cpp``: the
+    registration); raises if they cannot be built (no compiler, no OpenMP)."""
     from torch.utils.cpp_extension import load
 
     # torch builds with ninja; the pip-installed one sits beside this interpreter.
     os.environ["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
-    print("eve3d: loading the C++ rasteriser (compiled once, about 30 s on 2 cores, then cached)", file=sys.stderr)
+    print("eve3d: loading the C++ rasteriser (compiled once, about 15 s on 2 cores, then cached)", file=sys.stderr)
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") else []
     load(name=f"eve3d_rasterize_{build_tag()}", sources=[str(p) for p in SOURCES], is_python_module=False,
          extra_cflags=["-O3", *native, "-fno-trapping-math", "-fopenmp"], extra_ldflags=["-fopenmp"], verbose=False)

@@ -9,7 +9,7 @@
 //
 // The normal of a depth map (depth_to_normal): the back-projected points' central
 // differences over +-span pixels, their cross product, normalised; zero on the border.
-#include "losses.h"
+#include "kernels.h"
 
 #include <algorithm>
 #include <cmath>
@@ -99,41 +99,29 @@ void ssim_grad(const T* m, const T* x, const T* y, int64_t N, T scale, T* g) {
 
 }  // namespace
 
-std::vector<at::Tensor> ssim_forward(at::Tensor a, at::Tensor b, int64_t window, double sigma) {
-    TORCH_CHECK(a.device().is_cpu() && b.device().is_cpu(), "ssim: CPU tensors");
-    TORCH_CHECK(a.dim() == 3 && a.sizes() == b.sizes(), "ssim: two (H, W, C) images of one size, got ", a.sizes(),
-                " and ", b.sizes());
-    const int64_t H = a.size(0), W = a.size(1), C = a.size(2), HW = H * W;
-    // planar: x, y, x^2, y^2, xy of every channel; then their blurs
-    auto x = a.permute({2, 0, 1}).contiguous(), y = b.permute({2, 0, 1}).contiguous().to(a.scalar_type());
-    const std::vector<at::Tensor> planes = {x, y, x.mul(x), y.mul(y), x.mul(y)};
-    auto maps = at::cat(planes).contiguous();
-    auto derivs = at::empty({3, C, H, W}, a.options());  // d SSIM / d mu_x, d E[x^2], d E[xy]
-    double total = 0;
-    AT_DISPATCH_FLOATING_TYPES(a.scalar_type(), "eve3d_ssim_forward", [&] {
-        scalar_t* m = maps.data_ptr<scalar_t>();
-        blur(m, 5 * C, H, W, gaussian_taps<scalar_t>(window, sigma));
-        total = ssim_map(m, C * HW, derivs.data_ptr<scalar_t>());
-    });
-    return {at::scalar_tensor(total / (double)(C * HW), a.options()), derivs};
+namespace eve3d {
+
+template <typename T>
+double ssim_forward(T* maps, int64_t C, int64_t H, int64_t W, int64_t window, double sigma, T* derivs) {
+    blur(maps, 5 * C, H, W, gaussian_taps<T>(window, sigma));
+    return ssim_map(maps, C * H * W, derivs);
 }
 
-at::Tensor ssim_backward(at::Tensor a, at::Tensor b, at::Tensor derivs, int64_t window, double sigma,
-                            double grad_out) {
-    TORCH_CHECK(a.dim() == 3 && a.sizes() == b.sizes() && derivs.size(0) == 3 && derivs.numel() == 3 * a.numel(),
-                "ssim backward: images (H, W, C) and derivatives (3, C, H, W) of one size");
-    const int64_t H = a.size(0), W = a.size(1), C = a.size(2), HW = H * W;
-    auto x = a.permute({2, 0, 1}).contiguous(), y = b.permute({2, 0, 1}).contiguous().to(a.scalar_type());
-    auto blurred = derivs.clone();
-    auto grad = at::empty({C, H, W}, a.options());
-    AT_DISPATCH_FLOATING_TYPES(a.scalar_type(), "eve3d_ssim_backward", [&] {
-        scalar_t* m = blurred.data_ptr<scalar_t>();
-        blur(m, 3 * C, H, W, gaussian_taps<scalar_t>(window, sigma));
-        ssim_grad(m, x.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), C * HW, (scalar_t)(grad_out / (double)(C * HW)),
-                  grad.data_ptr<scalar_t>());
-    });
-    return grad.permute({1, 2, 0}).contiguous();
+template <typename T>
+void ssim_backward(T* blurred, const T* x, const T* y, int64_t C, int64_t H, int64_t W, int64_t window, double sigma,
+                   double grad_out, T* grad) {
+    blur(blurred, 3 * C, H, W, gaussian_taps<T>(window, sigma));
+    ssim_grad(blurred, x, y, C * H * W, (T)(grad_out / (double)(C * H * W)), grad);
 }
+
+template double ssim_forward<float>(float*, int64_t, int64_t, int64_t, int64_t, double, float*);
+template double ssim_forward<double>(double*, int64_t, int64_t, int64_t, int64_t, double, double*);
+template void ssim_backward<float>(float*, const float*, const float*, int64_t, int64_t, int64_t, int64_t, double,
+                                   double, float*);
+template void ssim_backward<double>(double*, const double*, const double*, int64_t, int64_t, int64_t, int64_t,
+                                    double, double, double*);
+
+}  // namespace eve3d
 
 namespace {
 
@@ -156,8 +144,12 @@ inline void cross(const T a[3], const T b[3], T out[3]) {
 
 constexpr double NORMALIZE_EPS = 1e-12;  // torch.nn.functional.normalize's
 
+}  // namespace
+
+namespace eve3d {
+
 template <typename T>
-void depth_normal_impl(const T* depth, const T* rays, int64_t H, int64_t W, int64_t k, T* n) {
+void depth_normal_forward(const T* depth, const T* rays, int64_t H, int64_t W, int64_t k, T* n) {
 #pragma omp parallel for schedule(static)
     for (int64_t y = 0; y < H; ++y)
         for (int64_t x = 0; x < W; ++x) {
@@ -177,7 +169,7 @@ void depth_normal_impl(const T* depth, const T* rays, int64_t H, int64_t W, int6
 // g_dx, g_dy (H, W, 3): the gradients of the interior pixels' differences; then each depth
 // gathers them from the four pixels whose differences it enters.
 template <typename T>
-void depth_normal_backward_impl(const T* depth, const T* rays, int64_t H, int64_t W, int64_t k, const T* gn, T* g_dx,
+void depth_normal_backward(const T* depth, const T* rays, int64_t H, int64_t W, int64_t k, const T* gn, T* g_dx,
                                 T* g_dy, T* g_depth) {
 #pragma omp parallel for schedule(static)
     for (int64_t y = 0; y < H; ++y)
@@ -212,43 +204,11 @@ void depth_normal_backward_impl(const T* depth, const T* rays, int64_t H, int64_
         }
 }
 
-}  // namespace
+template void depth_normal_forward<float>(const float*, const float*, int64_t, int64_t, int64_t, float*);
+template void depth_normal_forward<double>(const double*, const double*, int64_t, int64_t, int64_t, double*);
+template void depth_normal_backward<float>(const float*, const float*, int64_t, int64_t, int64_t, const float*,
+                                           float*, float*, float*);
+template void depth_normal_backward<double>(const double*, const double*, int64_t, int64_t, int64_t, const double*,
+                                            double*, double*, double*);
 
-namespace {
-
-void check_depth_rays(const at::Tensor& depth, const at::Tensor& rays, int64_t span) {
-    TORCH_CHECK(depth.device().is_cpu() && rays.device().is_cpu(), "depth_to_normal: CPU tensors");
-    TORCH_CHECK(depth.dim() == 2 && rays.dim() == 3 && rays.size(0) == depth.size(0) &&
-                    rays.size(1) == depth.size(1) && rays.size(2) == 3,
-                "depth_to_normal: depth (H, W) and rays (H, W, 3) of one size, got ", depth.sizes(), " and ",
-                rays.sizes());
-    TORCH_CHECK(span >= 1, "depth_to_normal: span >= 1, got ", span);
-}
-
-}  // namespace
-
-at::Tensor depth_normal_forward(at::Tensor depth, at::Tensor rays, int64_t span) {
-    check_depth_rays(depth, rays, span);
-    depth = depth.contiguous(), rays = rays.to(depth.scalar_type()).contiguous();
-    auto normal = at::empty({depth.size(0), depth.size(1), 3}, depth.options());
-    AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "eve3d_depth_normal_forward", [&] {
-        depth_normal_impl(depth.data_ptr<scalar_t>(), rays.data_ptr<scalar_t>(), depth.size(0), depth.size(1), span,
-                          normal.data_ptr<scalar_t>());
-    });
-    return normal;
-}
-
-at::Tensor depth_normal_backward(at::Tensor depth, at::Tensor rays, int64_t span, at::Tensor grad_normal) {
-    check_depth_rays(depth, rays, span);
-    TORCH_CHECK(grad_normal.sizes() == rays.sizes(), "depth_to_normal: gradient of shape ", grad_normal.sizes());
-    depth = depth.contiguous(), rays = rays.to(depth.scalar_type()).contiguous();
-    grad_normal = grad_normal.contiguous();
-    auto g_dx = at::empty_like(grad_normal), g_dy = at::empty_like(grad_normal);
-    auto g_depth = at::empty_like(depth);
-    AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "eve3d_depth_normal_backward", [&] {
-        depth_normal_backward_impl(depth.data_ptr<scalar_t>(), rays.data_ptr<scalar_t>(), depth.size(0),
-                                   depth.size(1), span, grad_normal.data_ptr<scalar_t>(), g_dx.data_ptr<scalar_t>(),
-                                   g_dy.data_ptr<scalar_t>(), g_depth.data_ptr<scalar_t>());
-    });
-    return g_depth;
-}
+}  // namespace eve3d

@@ -3,7 +3,7 @@
 // and choices (shortest axis, facing sign) are those of eve3d/gaussians/render/projection.py, which
 // stays the reference the tests compare with. Python scalars are rounded to scalar_t where
 // PyTorch rounds them, so the two agree to the order of operations.
-#include "projection.h"
+#include "kernels.h"
 
 #include <algorithm>
 #include <cmath>
@@ -16,29 +16,7 @@ constexpr double COMPENSATION_FLOOR = 1e-12;
 constexpr double NORMALIZE_EPS = 1e-12;  // torch.nn.functional.normalize's
 constexpr double EXTENT_MAX = 3.33;
 
-template <typename T>
-struct Cam {
-    T R[9], t[3];
-    T fx, fy, cx, cy;
-    T lo_x, hi_x, lo_y, hi_y;  // the tangent clamp on x/z and y/z
-    T near, far, width, height;
-};
-
-template <typename T>
-Cam<T> make_cam(const at::Tensor& R, const at::Tensor& t, double fx, double fy, double cx, double cy,
-                int64_t width, int64_t height, double near, double far) {
-    Cam<T> c;
-    const auto Rc = R.contiguous(), tc = t.contiguous();
-    std::copy(Rc.data_ptr<T>(), Rc.data_ptr<T>() + 9, c.R);
-    std::copy(tc.data_ptr<T>(), tc.data_ptr<T>() + 3, c.t);
-    c.fx = (T)fx, c.fy = (T)fy, c.cx = (T)cx, c.cy = (T)cy;
-    // 30 % of the half field of view beyond the image, computed in double as Python does.
-    const double margin_x = 0.3 * 0.5 * width / fx, margin_y = 0.3 * 0.5 * height / fy;
-    c.lo_x = (T)(-(cx / fx + margin_x)), c.hi_x = (T)((width - cx) / fx + margin_x);
-    c.lo_y = (T)(-(cy / fy + margin_y)), c.hi_y = (T)((height - cy) / fy + margin_y);
-    c.near = (T)near, c.far = (T)far, c.width = (T)width, c.height = (T)height;
-    return c;
-}
+using eve3d::Cam;
 
 // One Gaussian's forward quantities; the backward recomputes them rather than storing them.
 template <typename T>
@@ -119,29 +97,6 @@ inline void radii_one(const Splat<T>& p, T opacity, const Cam<T>& C, int32_t* ra
                       p.v - ry < C.height;
     radii[0] = keep ? (int32_t)rx : 0;
     radii[1] = keep ? (int32_t)ry : 0;
-}
-
-template <typename T>
-void forward_impl(int64_t n, const T* means, const T* quats, const T* scales, const T* opac, const Cam<T>& C,
-                  bool antialiased, T* means2d, T* conics, T* depths, int32_t* radii, T* comp, T* normals,
-                  T* distances, T* opac_out) {
-#pragma omp parallel for schedule(static)
-    for (int64_t i = 0; i < n; ++i) {
-        Splat<T> p;
-        project_one(means + 3 * i, quats + 4 * i, scales + 3 * i, C, p);
-        radii_one(p, opac[i], C, radii + 2 * i);
-        means2d[2 * i] = p.u, means2d[2 * i + 1] = p.v;
-        conics[3 * i] = p.c / p.D, conics[3 * i + 1] = -p.b / p.D, conics[3 * i + 2] = p.a / p.D;
-        depths[i] = p.mc[2];
-        comp[i] = p.comp;
-        T dist = 0;
-        for (int r = 0; r < 3; ++r) {
-            normals[3 * i + r] = p.sign * p.P[3 * r + p.k];
-            dist += normals[3 * i + r] * p.mc[r];
-        }
-        distances[i] = -dist;
-        opac_out[i] = antialiased ? opac[i] * p.comp : opac[i];
-    }
 }
 
 // Incoming gradients of one Gaussian's outputs.
@@ -256,8 +211,50 @@ inline void backward_one(const Splat<T>& p, const T* s, T opacity, const Cam<T>&
     for (int i = 0; i < 4; ++i) g_quat[i] = (gq[i] - dot * p.qn[i]) / d;
 }
 
+}  // namespace
+
+namespace eve3d {
+
 template <typename T>
-void backward_impl(int64_t n, const T* means, const T* quats, const T* scales, const T* opac, const Cam<T>& C,
+Cam<T> make_cam(const T* R, const T* t, double fx, double fy, double cx, double cy, int64_t width, int64_t height,
+                double near, double far) {
+    Cam<T> c;
+    std::copy(R, R + 9, c.R);
+    std::copy(t, t + 3, c.t);
+    c.fx = (T)fx, c.fy = (T)fy, c.cx = (T)cx, c.cy = (T)cy;
+    // 30 % of the half field of view beyond the image, computed in double as Python does.
+    const double margin_x = 0.3 * 0.5 * width / fx, margin_y = 0.3 * 0.5 * height / fy;
+    c.lo_x = (T)(-(cx / fx + margin_x)), c.hi_x = (T)((width - cx) / fx + margin_x);
+    c.lo_y = (T)(-(cy / fy + margin_y)), c.hi_y = (T)((height - cy) / fy + margin_y);
+    c.near = (T)near, c.far = (T)far, c.width = (T)width, c.height = (T)height;
+    return c;
+}
+
+template <typename T>
+void project_forward(int64_t n, const T* means, const T* quats, const T* scales, const T* opac, const Cam<T>& C,
+                  bool antialiased, T* means2d, T* conics, T* depths, int32_t* radii, T* comp, T* normals,
+                  T* distances, T* opac_out) {
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+        Splat<T> p;
+        project_one(means + 3 * i, quats + 4 * i, scales + 3 * i, C, p);
+        radii_one(p, opac[i], C, radii + 2 * i);
+        means2d[2 * i] = p.u, means2d[2 * i + 1] = p.v;
+        conics[3 * i] = p.c / p.D, conics[3 * i + 1] = -p.b / p.D, conics[3 * i + 2] = p.a / p.D;
+        depths[i] = p.mc[2];
+        comp[i] = p.comp;
+        T dist = 0;
+        for (int r = 0; r < 3; ++r) {
+            normals[3 * i + r] = p.sign * p.P[3 * r + p.k];
+            dist += normals[3 * i + r] * p.mc[r];
+        }
+        distances[i] = -dist;
+        opac_out[i] = antialiased ? opac[i] * p.comp : opac[i];
+    }
+}
+
+template <typename T>
+void project_backward(int64_t n, const T* means, const T* quats, const T* scales, const T* opac, const Cam<T>& C,
                    bool antialiased, const T* gm2, const T* gcon, const T* gdep, const T* gcomp, const T* gnorm,
                    const T* gdist, const T* gop, T* g_means, T* g_quats, T* g_scales, T* g_opac) {
 #pragma omp parallel for schedule(static)
@@ -277,81 +274,23 @@ void backward_impl(int64_t n, const T* means, const T* quats, const T* scales, c
     }
 }
 
-void check_inputs(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
-                  const at::Tensor& opacities, const at::Tensor& R, const at::Tensor& t) {
-    const int64_t n = means.size(0);
-    TORCH_CHECK(means.dim() == 2 && means.size(1) == 3, "means must be (N, 3)");
-    TORCH_CHECK(quats.dim() == 2 && quats.size(0) == n && quats.size(1) == 4, "quats must be (N, 4)");
-    TORCH_CHECK(scales.dim() == 2 && scales.size(0) == n && scales.size(1) == 3, "scales must be (N, 3)");
-    TORCH_CHECK(opacities.dim() == 1 && opacities.size(0) == n, "opacities must be (N,)");
-    TORCH_CHECK(R.numel() == 9 && t.numel() == 3, "R must be (3, 3) and t (3,)");
-    for (const auto* x : {&quats, &scales, &opacities, &R, &t})
-        TORCH_CHECK(x->scalar_type() == means.scalar_type(), "all inputs must have the dtype of means");
-}
+template Cam<float> make_cam<float>(const float*, const float*, double, double, double, double, int64_t, int64_t,
+                                    double, double);
+template Cam<double> make_cam<double>(const double*, const double*, double, double, double, double, int64_t,
+                                      int64_t, double, double);
+template void project_forward<float>(int64_t, const float*, const float*, const float*, const float*,
+                                     const Cam<float>&, bool, float*, float*, float*, int32_t*, float*, float*,
+                                     float*, float*);
+template void project_forward<double>(int64_t, const double*, const double*, const double*, const double*,
+                                      const Cam<double>&, bool, double*, double*, double*, int32_t*, double*,
+                                      double*, double*, double*);
+template void project_backward<float>(int64_t, const float*, const float*, const float*, const float*,
+                                      const Cam<float>&, bool, const float*, const float*, const float*,
+                                      const float*, const float*, const float*, const float*, float*, float*,
+                                      float*, float*);
+template void project_backward<double>(int64_t, const double*, const double*, const double*, const double*,
+                                       const Cam<double>&, bool, const double*, const double*, const double*,
+                                       const double*, const double*, const double*, const double*, double*,
+                                       double*, double*, double*);
 
-}  // namespace
-
-// means2d (N, 2), conics (N, 3), depths (N,), radii (N, 2) int32, compensation (N,),
-// camera-space normals (N, 3), plane distances (N,) and the opacities the rasteriser uses
-// (× compensation when antialiased) (N,).
-std::vector<at::Tensor> project_forward(at::Tensor means, at::Tensor quats, at::Tensor scales,
-                                           at::Tensor opacities, at::Tensor R, at::Tensor t, double fx,
-                                           double fy, double cx, double cy, int64_t width, int64_t height,
-                                           double near, double far, bool antialiased) {
-    check_inputs(means, quats, scales, opacities, R, t);
-    means = means.contiguous(), quats = quats.contiguous(), scales = scales.contiguous();
-    opacities = opacities.contiguous();
-    const int64_t n = means.size(0);
-    const auto opts = means.options();
-    auto means2d = at::empty({n, 2}, opts), conics = at::empty({n, 3}, opts);
-    auto depths = at::empty({n}, opts), comp = at::empty({n}, opts);
-    auto normals = at::empty({n, 3}, opts), distances = at::empty({n}, opts);
-    auto opac_out = at::empty({n}, opts);
-    auto radii = at::empty({n, 2}, opts.dtype(at::kInt));
-    AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "eve3d_project_forward", [&] {
-        const auto C = make_cam<scalar_t>(R, t, fx, fy, cx, cy, width, height, near, far);
-        forward_impl<scalar_t>(n, means.data_ptr<scalar_t>(), quats.data_ptr<scalar_t>(),
-                               scales.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(), C, antialiased,
-                               means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
-                               depths.data_ptr<scalar_t>(), radii.data_ptr<int32_t>(), comp.data_ptr<scalar_t>(),
-                               normals.data_ptr<scalar_t>(), distances.data_ptr<scalar_t>(),
-                               opac_out.data_ptr<scalar_t>());
-    });
-    return {means2d, conics, depths, radii, comp, normals, distances, opac_out};
-}
-
-// Gradients of means (N, 3), quats (N, 4), scales (N, 3) and opacities (N,) from those of
-// project_forward's differentiable outputs.
-std::vector<at::Tensor> project_backward(at::Tensor means, at::Tensor quats, at::Tensor scales,
-                                            at::Tensor opacities, at::Tensor R, at::Tensor t, double fx,
-                                            double fy, double cx, double cy, int64_t width, int64_t height,
-                                            double near, bool antialiased, at::Tensor grad_means2d,
-                                            at::Tensor grad_conics, at::Tensor grad_depths,
-                                            at::Tensor grad_compensation, at::Tensor grad_normals,
-                                            at::Tensor grad_distances, at::Tensor grad_opacities) {
-    check_inputs(means, quats, scales, opacities, R, t);
-    means = means.contiguous(), quats = quats.contiguous(), scales = scales.contiguous();
-    opacities = opacities.contiguous();
-    const int64_t n = means.size(0);
-    // Incoming gradients are often slices of a wider one (the features' columns).
-    std::vector<at::Tensor> grads;
-    for (const auto& g : {grad_means2d, grad_conics, grad_depths, grad_compensation, grad_normals, grad_distances,
-                          grad_opacities}) {
-        TORCH_CHECK(g.scalar_type() == means.scalar_type() && g.size(0) == n, "gradient of the wrong dtype or size");
-        grads.push_back(g.contiguous());
-    }
-    auto g_means = at::empty_like(means), g_quats = at::empty_like(quats);
-    auto g_scales = at::empty_like(scales), g_opac = at::empty_like(opacities);
-    AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "eve3d_project_backward", [&] {
-        const auto C = make_cam<scalar_t>(R, t, fx, fy, cx, cy, width, height, near, 0.0);
-        backward_impl<scalar_t>(n, means.data_ptr<scalar_t>(), quats.data_ptr<scalar_t>(),
-                                scales.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(), C, antialiased,
-                                grads[0].data_ptr<scalar_t>(), grads[1].data_ptr<scalar_t>(),
-                                grads[2].data_ptr<scalar_t>(), grads[3].data_ptr<scalar_t>(),
-                                grads[4].data_ptr<scalar_t>(), grads[5].data_ptr<scalar_t>(),
-                                grads[6].data_ptr<scalar_t>(), g_means.data_ptr<scalar_t>(),
-                                g_quats.data_ptr<scalar_t>(), g_scales.data_ptr<scalar_t>(),
-                                g_opac.data_ptr<scalar_t>());
-    });
-    return {g_means, g_quats, g_scales, g_opac};
-}
+}  // namespace eve3d

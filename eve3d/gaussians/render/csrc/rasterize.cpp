@@ -4,7 +4,7 @@
 // Gaussians arrive sorted front to back, so binning them in order keeps every tile's list
 // depth-sorted. The backward pass walks each pixel's list back to front, recovering T by
 // division as gsplat does, and accumulates gradients in per-thread buffers.
-#include "rasterize.h"
+#include "kernels.h"
 
 #include <algorithm>
 #include <cmath>
@@ -24,14 +24,6 @@ constexpr double ALPHA_MIN = 1.0 / 255.0;
 constexpr double ALPHA_MAX = 0.999;
 constexpr double T_MIN = 1e-4;
 
-int max_threads() {
-#ifdef _OPENMP
-    return omp_get_max_threads();
-#else
-    return 1;
-#endif
-}
-
 int thread_id() {
 #ifdef _OPENMP
     return omp_get_thread_num();
@@ -40,33 +32,42 @@ int thread_id() {
 #endif
 }
 
-// Per-tile lists of Gaussian indices (CSR): offsets (tiles + 1) and ids. boxes (V, 4) belong to
-// the visible Gaussians in depth order; ids are their indices among all N (visible[rank]).
-std::vector<at::Tensor> bin_tiles(const at::Tensor& boxes, const at::Tensor& visible, int64_t width,
-                                     int64_t height) {
+}  // namespace
+
+namespace eve3d {
+
+int max_threads() {
+#ifdef _OPENMP
+    return omp_get_max_threads();
+#else
+    return 1;
+#endif
+}
+
+void bin_tiles(const int64_t* b, const int64_t* vis, int64_t n, int64_t width, int64_t height,
+               std::vector<int64_t>& counts, std::vector<int64_t>& ids) {
     const int64_t tiles_x = (width + TILE - 1) / TILE, tiles_y = (height + TILE - 1) / TILE;
-    const int64_t n = boxes.size(0);
-    auto b = boxes.accessor<int64_t, 2>();
-    const auto vis_c = visible.contiguous();
-    const int64_t* vis = vis_c.data_ptr<int64_t>();
-    std::vector<int64_t> counts(tiles_x * tiles_y + 1, 0);
+    counts.assign(tiles_x * tiles_y + 1, 0);
     for (int64_t g = 0; g < n; ++g) {
-        if (b[g][2] < b[g][0] || b[g][3] < b[g][1]) continue;
-        for (int64_t ty = b[g][1] / TILE; ty <= b[g][3] / TILE; ++ty)
-            for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) counts[ty * tiles_x + tx + 1]++;
+        const int64_t* bg = b + 4 * g;
+        if (bg[2] < bg[0] || bg[3] < bg[1]) continue;
+        for (int64_t ty = bg[1] / TILE; ty <= bg[3] / TILE; ++ty)
+            for (int64_t tx = bg[0] / TILE; tx <= bg[2] / TILE; ++tx) counts[ty * tiles_x + tx + 1]++;
     }
     for (size_t i = 1; i < counts.size(); ++i) counts[i] += counts[i - 1];
-    auto offsets = at::from_blob(counts.data(), {(int64_t)counts.size()}, at::kLong).clone();
-    auto ids = at::empty({counts.back()}, at::kLong);
-    int64_t* out = ids.data_ptr<int64_t>();
+    ids.resize(counts.back());
     std::vector<int64_t> fill(counts.begin(), counts.end() - 1);
     for (int64_t g = 0; g < n; ++g) {
-        if (b[g][2] < b[g][0] || b[g][3] < b[g][1]) continue;
-        for (int64_t ty = b[g][1] / TILE; ty <= b[g][3] / TILE; ++ty)
-            for (int64_t tx = b[g][0] / TILE; tx <= b[g][2] / TILE; ++tx) out[fill[ty * tiles_x + tx]++] = vis[g];
+        const int64_t* bg = b + 4 * g;
+        if (bg[2] < bg[0] || bg[3] < bg[1]) continue;
+        for (int64_t ty = bg[1] / TILE; ty <= bg[3] / TILE; ++ty)
+            for (int64_t tx = bg[0] / TILE; tx <= bg[2] / TILE; ++tx) ids[fill[ty * tiles_x + tx]++] = vis[g];
     }
-    return {offsets, ids};
 }
+
+}  // namespace eve3d
+
+namespace {
 
 // exp(x) in a form the compiler vectorises across a row of pixels (glibc's vector exp needs
 // -ffast-math, which would also drop the NaN tests below): x = n ln2 + r with |r| <= ln2 / 2,
@@ -179,12 +180,16 @@ inline void row_splat(const Entry<scalar_t>& e, int64_t x0, int64_t tw, int64_t 
     }
 }
 
+}  // namespace
+
+namespace eve3d {
+
 // Tiles in parallel; within a tile the list is walked once, in order, and each entry is
 // composited into the rows it reaches, TILE pixels at a time (vectorised). Each pixel sees the
 // same entries in the same order with the same arithmetic as a per-pixel loop (with vexp), and
 // keeps its own transmittance, stop flag and count of entries consumed.
 template <typename scalar_t>
-int64_t forward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
+int64_t composite_forward(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
                      int64_t V, const int64_t* off, const int64_t* ids, int64_t tiles, int64_t width, int64_t height,
                      scalar_t* img, scalar_t* tf, int32_t* used) {
     constexpr int64_t P = TILE * TILE;
@@ -261,7 +266,7 @@ int64_t forward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, co
 // of an entry by division (as gsplat does) and the entry's gradient is summed over the tile's
 // pixels in lanes, then added once into this thread's buffer.
 template <typename scalar_t>
-void backward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
+void composite_backward(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* f, int64_t C,
                    int64_t V, const int64_t* off, const int64_t* gids, int64_t tiles, int64_t width,
                    int64_t height, const scalar_t* tf, const int32_t* used, const scalar_t* gi,
                    const scalar_t* ga, scalar_t* all) {
@@ -378,47 +383,20 @@ void backward_impl(const scalar_t* m, const scalar_t* c, const scalar_t* o, cons
     }
 }
 
-}  // namespace
+template int64_t composite_forward<float>(const float*, const float*, const float*, const float*, int64_t, int64_t,
+                                          const int64_t*, const int64_t*, int64_t, int64_t, int64_t, float*, float*,
+                                          int32_t*);
+template int64_t composite_forward<double>(const double*, const double*, const double*, const double*, int64_t,
+                                           int64_t, const int64_t*, const int64_t*, int64_t, int64_t, int64_t,
+                                           double*, double*, int32_t*);
+template void composite_backward<float>(const float*, const float*, const float*, const float*, int64_t, int64_t,
+                                        const int64_t*, const int64_t*, int64_t, int64_t, int64_t, const float*,
+                                        const int32_t*, const float*, const float*, float*);
+template void composite_backward<double>(const double*, const double*, const double*, const double*, int64_t,
+                                         int64_t, const int64_t*, const int64_t*, int64_t, int64_t, int64_t,
+                                         const double*, const int32_t*, const double*, const double*, double*);
 
-// Returns image (H*W, C), final transmittance (H*W), per-pixel count of list entries
-// consumed (H*W, int32), tile offsets, tile ids and the number of pairs composited.
-std::vector<at::Tensor> forward(at::Tensor means2d, at::Tensor conics, at::Tensor opac,
-                                   at::Tensor feats, at::Tensor boxes, at::Tensor visible, int64_t width,
-                                   int64_t height) {
-    auto bins = bin_tiles(boxes, visible, width, height);
-    auto image = at::zeros({height * width, feats.size(1)}, feats.options());
-    auto final_t = at::ones({height * width}, feats.options());
-    auto consumed = at::zeros({height * width}, at::kInt);
-    int64_t n_pairs = 0;
-    AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "eve3d_rasterize_forward", [&] {
-        n_pairs = forward_impl<scalar_t>(
-            means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), opac.data_ptr<scalar_t>(),
-            feats.data_ptr<scalar_t>(), feats.size(1), feats.size(0), bins[0].data_ptr<int64_t>(), bins[1].data_ptr<int64_t>(),
-            bins[0].size(0) - 1, width, height, image.data_ptr<scalar_t>(), final_t.data_ptr<scalar_t>(),
-            consumed.data_ptr<int32_t>());
-    });
-    return {image, final_t, consumed, bins[0], bins[1], at::scalar_tensor(n_pairs, at::kLong)};
-}
-
-// Gradients for means2d (V, 2), conics (V, 3), opacities (V), features (V, C) and the
-// per-pixel absolute means2d gradients summed per Gaussian (V, 2).
-std::vector<at::Tensor> backward(at::Tensor means2d, at::Tensor conics, at::Tensor opac,
-                                    at::Tensor feats, at::Tensor offsets, at::Tensor ids,
-                                    at::Tensor final_t, at::Tensor consumed, at::Tensor grad_image,
-                                    at::Tensor grad_alpha, int64_t width, int64_t height) {
-    const int64_t C = feats.size(1), V = feats.size(0);
-    auto buffers = at::zeros({max_threads(), V, 8 + C}, feats.options());
-    AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "eve3d_rasterize_backward", [&] {
-        backward_impl<scalar_t>(
-            means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), opac.data_ptr<scalar_t>(),
-            feats.data_ptr<scalar_t>(), C, V, offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(),
-            offsets.size(0) - 1, width, height, final_t.data_ptr<scalar_t>(), consumed.data_ptr<int32_t>(),
-            grad_image.data_ptr<scalar_t>(), grad_alpha.data_ptr<scalar_t>(), buffers.data_ptr<scalar_t>());
-    });
-    auto total = buffers.sum(0);
-    return {total.slice(1, 0, 2), total.slice(1, 2, 5), total.select(1, 5), total.slice(1, 6, 6 + C),
-            total.slice(1, 6 + C, 8 + C)};
-}
+}  // namespace eve3d
 
 namespace {
 
@@ -458,44 +436,40 @@ void sort_by_depth(const scalar_t* depths, std::vector<int64_t>& idx) {
 
 }  // namespace
 
-// eve3d.gaussians.render.projection.front_to_back in C++: the Gaussians with a positive radius, sorted
-// stably by depth, and their inclusive pixel boxes (V, 4) x0, y0, x1, y1, computed with the
-// same float operations.
-std::vector<at::Tensor> front_to_back(at::Tensor radii, at::Tensor depths, at::Tensor means2d,
-                                         int64_t width, int64_t height) {
-    radii = radii.to(at::kInt).contiguous();
-    means2d = means2d.contiguous();
-    depths = depths.to(means2d.scalar_type()).contiguous();
-    const int64_t n = radii.size(0);
-    const int32_t* r = radii.data_ptr<int32_t>();
-    std::vector<int64_t> idx;
+namespace eve3d {
+
+template <typename scalar_t>
+void front_to_back(const int32_t* r, const scalar_t* depths, const scalar_t* m, int64_t n, int64_t width,
+                   int64_t height, std::vector<int64_t>& idx, std::vector<int64_t>& boxes) {
+    idx.clear();
     idx.reserve(n);
     for (int64_t i = 0; i < n; ++i)
         if (r[2 * i] > 0 || r[2 * i + 1] > 0) idx.push_back(i);
-    at::Tensor boxes;
-    AT_DISPATCH_FLOATING_TYPES(means2d.scalar_type(), "eve3d_front_to_back", [&] {
-        if (sizeof(scalar_t) == 4)
-            sort_by_depth<scalar_t, uint32_t>(depths.data_ptr<scalar_t>(), idx);
-        else
-            sort_by_depth<scalar_t, uint64_t>(depths.data_ptr<scalar_t>(), idx);
-        const int64_t v = idx.size();
-        boxes = at::empty({v, 4}, at::kLong);
-        int64_t* b = boxes.data_ptr<int64_t>();
-        const scalar_t* m = means2d.data_ptr<scalar_t>();
-        const scalar_t half = (scalar_t)0.5, big = (scalar_t)1e12;
-        const scalar_t limit[2] = {(scalar_t)(width - 1), (scalar_t)(height - 1)};
-        for (int64_t j = 0; j < v; ++j) {
-            for (int a = 0; a < 2; ++a) {
-                const scalar_t mm = m[2 * idx[j] + a], rr = (scalar_t)r[2 * idx[j] + a];
-                scalar_t lo = std::ceil(mm - rr - half);
-                lo = lo < 0 ? (scalar_t)0 : lo;
-                scalar_t hi = std::floor(mm + rr - half);
-                hi = hi < limit[a] ? hi : limit[a];
-                b[4 * j + a] = (int64_t)std::min(lo, big);
-                b[4 * j + 2 + a] = (int64_t)std::max(hi, -big);
-            }
+    if (sizeof(scalar_t) == 4)
+        sort_by_depth<scalar_t, uint32_t>(depths, idx);
+    else
+        sort_by_depth<scalar_t, uint64_t>(depths, idx);
+    const int64_t v = idx.size();
+    boxes.resize(4 * v);
+    int64_t* b = boxes.data();
+    const scalar_t half = (scalar_t)0.5, big = (scalar_t)1e12;
+    const scalar_t limit[2] = {(scalar_t)(width - 1), (scalar_t)(height - 1)};
+    for (int64_t j = 0; j < v; ++j) {
+        for (int a = 0; a < 2; ++a) {
+            const scalar_t mm = m[2 * idx[j] + a], rr = (scalar_t)r[2 * idx[j] + a];
+            scalar_t lo = std::ceil(mm - rr - half);
+            lo = lo < 0 ? (scalar_t)0 : lo;
+            scalar_t hi = std::floor(mm + rr - half);
+            hi = hi < limit[a] ? hi : limit[a];
+            b[4 * j + a] = (int64_t)std::min(lo, big);
+            b[4 * j + 2 + a] = (int64_t)std::max(hi, -big);
         }
-    });
-    auto visible = at::from_blob(idx.data(), {(int64_t)idx.size()}, at::kLong).clone();
-    return {visible, boxes};
+    }
 }
+
+template void front_to_back<float>(const int32_t*, const float*, const float*, int64_t, int64_t, int64_t,
+                                   std::vector<int64_t>&, std::vector<int64_t>&);
+template void front_to_back<double>(const int32_t*, const double*, const double*, int64_t, int64_t, int64_t,
+                                    std::vector<int64_t>&, std::vector<int64_t>&);
+
+}  // namespace eve3d

@@ -6,7 +6,7 @@
 // The formulas and rules are those of eve3d.gaussians.losses.forward_backward_error (the reference the
 // tests compare with); fusing them replaces some forty image-sized tensor operations, each
 // with its autograd node, by one pass over the pixels.
-#include "roundtrip.h"
+#include "kernels.h"
 
 #include <algorithm>
 #include <cmath>
@@ -20,24 +20,8 @@ namespace {
 
 constexpr double Z_EPS = 1e-8;  // |z| below this is replaced by 1e-8 (as the PyTorch code)
 
-template <typename T>
-struct Pose {  // reference camera -> neighbour camera, and the neighbour's intrinsics
-    T R[9], t[3], fx, fy, cx, cy;
-};
-
-template <typename T>
-std::vector<Pose<T>> poses(const at::Tensor& R, const at::Tensor& t, const at::Tensor& intr) {
-    const int64_t K = R.size(0);
-    auto Rc = R.contiguous(), tc = t.contiguous(), ic = intr.contiguous();
-    const T *r = Rc.data_ptr<T>(), *tt = tc.data_ptr<T>(), *in = ic.data_ptr<T>();
-    std::vector<Pose<T>> out(K);
-    for (int64_t k = 0; k < K; ++k) {
-        for (int i = 0; i < 9; ++i) out[k].R[i] = r[9 * k + i];
-        for (int i = 0; i < 3; ++i) out[k].t[i] = tt[3 * k + i];
-        out[k].fx = in[4 * k], out[k].fy = in[4 * k + 1], out[k].cx = in[4 * k + 2], out[k].cy = in[4 * k + 3];
-    }
-    return out;
-}
+using eve3d::NccArgs;
+using eve3d::Pose;
 
 template <typename T>
 inline T safe_z(T z) {
@@ -120,8 +104,87 @@ inline Trip<T> trip(const T* dref, const T* dnbr, const Pose<T>& P, T fx, T fy, 
     return s;
 }
 
+// d phi / d (reference depth, neighbour depth taps), chained with the incoming gradient.
+// ---- NCC of patches warped by the plane-induced homography (eve3d.gaussians.losses.ncc_loss) ----------
+
+constexpr double NCC_EPS = 1e-8;     // var + 1e-8 under the square root; var > 1e-8 to be defined
+constexpr double DIST_FLOOR = 1e-6;  // the plane distance is clamped below at this
+
+// One reference pixel against one neighbour: the patch, its warp and the NCC statistics.
 template <typename T>
-void forward_impl(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, T fx, T fy, T cx, T cy, int64_t W,
+struct Patch {
+    T H[9], dd, a[64], b[64], hom[64][3], ws[64], cov, va, vb, S, ncc;
+    bool defined;
+};
+
+template <typename T>
+void ncc_patch(const T* ref, int64_t W, int64_t Hh, const T* nbr, int64_t w, int64_t h, const T* centre,
+               const T* n, T d, const Pose<T>& Q, T fx, T fy, T cx, T cy, int64_t patch, T step, Patch<T>& s) {
+    const int64_t P = patch * patch;
+    s.dd = d > (T)DIST_FLOOR ? d : (T)DIST_FLOOR;
+    T A[9], KA[9];
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) A[3 * i + j] = Q.R[3 * i + j] - Q.t[i] * n[j] / s.dd;
+    for (int j = 0; j < 3; ++j) {  // K_n A
+        KA[j] = Q.fx * A[j] + Q.cx * A[6 + j];
+        KA[3 + j] = Q.fy * A[3 + j] + Q.cy * A[6 + j];
+        KA[6 + j] = A[6 + j];
+    }
+    for (int i = 0; i < 3; ++i) {  // (K_n A) K_r^-1
+        s.H[3 * i] = KA[3 * i] / fx;
+        s.H[3 * i + 1] = KA[3 * i + 1] / fy;
+        s.H[3 * i + 2] = KA[3 * i + 2] - KA[3 * i] * cx / fx - KA[3 * i + 1] * cy / fy;
+    }
+    const T half = (T)(patch - 1) / 2 * step;
+    T mean_a = 0, mean_b = 0;
+    bool inside = true;
+    for (int64_t q = 0; q < P; ++q) {
+        const T u = centre[0] + (-half + step * (T)(q % patch)), v = centre[1] + (-half + step * (T)(q / patch));
+        for (int i = 0; i < 3; ++i) s.hom[q][i] = s.H[3 * i] * u + s.H[3 * i + 1] * v + s.H[3 * i + 2];
+        s.ws[q] = safe_z(s.hom[q][2]);
+        const T un = s.hom[q][0] / s.ws[q], vn = s.hom[q][1] / s.ws[q];
+        inside = inside && un >= 0 && un < (T)w && vn >= 0 && vn < (T)h && s.hom[q][2] > 0;
+        s.a[q] = sample(ref, u, v, W, Hh);
+        s.b[q] = sample(nbr, un, vn, w, h);
+        mean_a += s.a[q];
+        mean_b += s.b[q];
+    }
+    mean_a /= (T)P;
+    mean_b /= (T)P;
+    s.cov = s.va = s.vb = 0;
+    for (int64_t q = 0; q < P; ++q) {
+        s.a[q] -= mean_a;
+        s.b[q] -= mean_b;
+        s.cov += s.a[q] * s.b[q];
+        s.va += s.a[q] * s.a[q];
+        s.vb += s.b[q] * s.b[q];
+    }
+    s.cov /= (T)P;
+    s.va /= (T)P;
+    s.vb /= (T)P;
+    s.S = std::sqrt(s.va * s.vb + (T)NCC_EPS);
+    s.ncc = s.cov / s.S;
+    s.defined = inside && d > 0 && s.va * s.vb > (T)NCC_EPS;
+}
+
+
+}  // namespace
+
+namespace eve3d {
+
+template <typename T>
+std::vector<Pose<T>> poses(const T* r, const T* tt, const T* in, int64_t K) {
+    std::vector<Pose<T>> out(K);
+    for (int64_t k = 0; k < K; ++k) {
+        for (int i = 0; i < 9; ++i) out[k].R[i] = r[9 * k + i];
+        for (int i = 0; i < 3; ++i) out[k].t[i] = tt[3 * k + i];
+        out[k].fx = in[4 * k], out[k].fy = in[4 * k + 1], out[k].cx = in[4 * k + 2], out[k].cy = in[4 * k + 3];
+    }
+    return out;
+}
+
+template <typename T>
+void roundtrip_forward(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, T fx, T fy, T cx, T cy, int64_t W,
                   int64_t H, int64_t w, int64_t h, T* phi, bool* defined) {
     const int64_t K = P.size(), n = W * H;
 #pragma omp parallel for schedule(static)
@@ -135,7 +198,7 @@ void forward_impl(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, T
 
 // d phi / d (reference depth, neighbour depth taps), chained with the incoming gradient.
 template <typename T>
-void backward_impl(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, T fx, T fy, T cx, T cy,
+void roundtrip_backward(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, T fx, T fy, T cx, T cy,
                    int64_t W, int64_t H, int64_t w, int64_t h, const T* gphi, T* gref, T* gnbr_all) {
     const int64_t K = P.size(), n = W * H, m = w * h;
 #pragma omp parallel
@@ -200,77 +263,8 @@ void backward_impl(const T* dref, const T* dnbr, const std::vector<Pose<T>>& P, 
     }
 }
 
-// ---- NCC of patches warped by the plane-induced homography (eve3d.gaussians.losses.ncc_loss) ----------
-
-constexpr double NCC_EPS = 1e-8;     // var + 1e-8 under the square root; var > 1e-8 to be defined
-constexpr double DIST_FLOOR = 1e-6;  // the plane distance is clamped below at this
-
-// One reference pixel against one neighbour: the patch, its warp and the NCC statistics.
 template <typename T>
-struct Patch {
-    T H[9], dd, a[64], b[64], hom[64][3], ws[64], cov, va, vb, S, ncc;
-    bool defined;
-};
-
-template <typename T>
-void ncc_patch(const T* ref, int64_t W, int64_t Hh, const T* nbr, int64_t w, int64_t h, const T* centre,
-               const T* n, T d, const Pose<T>& Q, T fx, T fy, T cx, T cy, int64_t patch, T step, Patch<T>& s) {
-    const int64_t P = patch * patch;
-    s.dd = d > (T)DIST_FLOOR ? d : (T)DIST_FLOOR;
-    T A[9], KA[9];
-    for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 3; ++j) A[3 * i + j] = Q.R[3 * i + j] - Q.t[i] * n[j] / s.dd;
-    for (int j = 0; j < 3; ++j) {  // K_n A
-        KA[j] = Q.fx * A[j] + Q.cx * A[6 + j];
-        KA[3 + j] = Q.fy * A[3 + j] + Q.cy * A[6 + j];
-        KA[6 + j] = A[6 + j];
-    }
-    for (int i = 0; i < 3; ++i) {  // (K_n A) K_r^-1
-        s.H[3 * i] = KA[3 * i] / fx;
-        s.H[3 * i + 1] = KA[3 * i + 1] / fy;
-        s.H[3 * i + 2] = KA[3 * i + 2] - KA[3 * i] * cx / fx - KA[3 * i + 1] * cy / fy;
-    }
-    const T half = (T)(patch - 1) / 2 * step;
-    T mean_a = 0, mean_b = 0;
-    bool inside = true;
-    for (int64_t q = 0; q < P; ++q) {
-        const T u = centre[0] + (-half + step * (T)(q % patch)), v = centre[1] + (-half + step * (T)(q / patch));
-        for (int i = 0; i < 3; ++i) s.hom[q][i] = s.H[3 * i] * u + s.H[3 * i + 1] * v + s.H[3 * i + 2];
-        s.ws[q] = safe_z(s.hom[q][2]);
-        const T un = s.hom[q][0] / s.ws[q], vn = s.hom[q][1] / s.ws[q];
-        inside = inside && un >= 0 && un < (T)w && vn >= 0 && vn < (T)h && s.hom[q][2] > 0;
-        s.a[q] = sample(ref, u, v, W, Hh);
-        s.b[q] = sample(nbr, un, vn, w, h);
-        mean_a += s.a[q];
-        mean_b += s.b[q];
-    }
-    mean_a /= (T)P;
-    mean_b /= (T)P;
-    s.cov = s.va = s.vb = 0;
-    for (int64_t q = 0; q < P; ++q) {
-        s.a[q] -= mean_a;
-        s.b[q] -= mean_b;
-        s.cov += s.a[q] * s.b[q];
-        s.va += s.a[q] * s.a[q];
-        s.vb += s.b[q] * s.b[q];
-    }
-    s.cov /= (T)P;
-    s.va /= (T)P;
-    s.vb /= (T)P;
-    s.S = std::sqrt(s.va * s.vb + (T)NCC_EPS);
-    s.ncc = s.cov / s.S;
-    s.defined = inside && d > 0 && s.va * s.vb > (T)NCC_EPS;
-}
-
-template <typename T>
-struct NccArgs {
-    const T *ref, *nbr, *centres, *normal, *distance;
-    int64_t W, H, w, h, K, M, patch;
-    T fx, fy, cx, cy, step;
-};
-
-template <typename T>
-void ncc_forward_impl(const NccArgs<T>& g, const std::vector<Pose<T>>& P, T* loss, bool* defined) {
+void ncc_forward(const NccArgs<T>& g, const std::vector<Pose<T>>& P, T* loss, bool* defined) {
 #pragma omp parallel for schedule(static)
     for (int64_t e = 0; e < g.K * g.M; ++e) {
         const int64_t k = e / g.M;
@@ -283,7 +277,7 @@ void ncc_forward_impl(const NccArgs<T>& g, const std::vector<Pose<T>>& P, T* los
 }
 
 template <typename T>
-void ncc_backward_impl(const NccArgs<T>& g, const std::vector<Pose<T>>& P, const T* gloss, T* gn, T* gd) {
+void ncc_backward(const NccArgs<T>& g, const std::vector<Pose<T>>& P, const T* gloss, T* gn, T* gd) {
     const int64_t Pn = g.patch * g.patch;
 #pragma omp parallel for schedule(static)
     for (int64_t e = 0; e < g.K * g.M; ++e) {
@@ -340,102 +334,15 @@ void ncc_backward_impl(const NccArgs<T>& g, const std::vector<Pose<T>>& P, const
     }
 }
 
-}  // namespace
+#define EVE3D_ROUNDTRIP(T)                                                                                   \
+    template std::vector<Pose<T>> poses<T>(const T*, const T*, const T*, int64_t);                         \
+    template void roundtrip_forward<T>(const T*, const T*, const std::vector<Pose<T>>&, T, T, T, T, int64_t, \
+                                       int64_t, int64_t, int64_t, T*, bool*);                               \
+    template void roundtrip_backward<T>(const T*, const T*, const std::vector<Pose<T>>&, T, T, T, T, int64_t, \
+                                        int64_t, int64_t, int64_t, const T*, T*, T*);                       \
+    template void ncc_forward<T>(const NccArgs<T>&, const std::vector<Pose<T>>&, T*, bool*);               \
+    template void ncc_backward<T>(const NccArgs<T>&, const std::vector<Pose<T>>&, const T*, T*, T*);
+EVE3D_ROUNDTRIP(float)
+EVE3D_ROUNDTRIP(double)
 
-std::vector<at::Tensor> roundtrip_forward(at::Tensor depth_ref, at::Tensor depth_nbrs, at::Tensor R,
-                                             at::Tensor t, at::Tensor nbr_intrinsics, double fx, double fy,
-                                             double cx, double cy) {
-    depth_ref = depth_ref.contiguous();
-    depth_nbrs = depth_nbrs.contiguous();
-    const int64_t K = depth_nbrs.size(0), H = depth_ref.size(0), W = depth_ref.size(1);
-    auto phi = at::empty({K, H, W}, depth_ref.options());
-    auto defined = at::empty({K, H, W}, depth_ref.options().dtype(at::kBool));
-    AT_DISPATCH_FLOATING_TYPES(depth_ref.scalar_type(), "eve3d_roundtrip_forward", [&] {
-        forward_impl<scalar_t>(depth_ref.data_ptr<scalar_t>(), depth_nbrs.data_ptr<scalar_t>(),
-                               poses<scalar_t>(R, t, nbr_intrinsics), fx, fy, cx, cy, W, H, depth_nbrs.size(2),
-                               depth_nbrs.size(1), phi.data_ptr<scalar_t>(), defined.data_ptr<bool>());
-    });
-    return {phi, defined};
-}
-
-std::vector<at::Tensor> roundtrip_backward(at::Tensor depth_ref, at::Tensor depth_nbrs, at::Tensor R,
-                                              at::Tensor t, at::Tensor nbr_intrinsics, double fx, double fy,
-                                              double cx, double cy, at::Tensor grad_phi) {
-    depth_ref = depth_ref.contiguous();
-    depth_nbrs = depth_nbrs.contiguous();
-    grad_phi = grad_phi.contiguous();
-    const int64_t K = depth_nbrs.size(0), H = depth_ref.size(0), W = depth_ref.size(1);
-#ifdef _OPENMP
-    const int64_t threads = omp_get_max_threads();
-#else
-    const int64_t threads = 1;
-#endif
-    auto grad_ref = at::zeros_like(depth_ref);
-    auto buffers = at::zeros({threads, K, depth_nbrs.size(1), depth_nbrs.size(2)}, depth_nbrs.options());
-    AT_DISPATCH_FLOATING_TYPES(depth_ref.scalar_type(), "eve3d_roundtrip_backward", [&] {
-        backward_impl<scalar_t>(depth_ref.data_ptr<scalar_t>(), depth_nbrs.data_ptr<scalar_t>(),
-                                poses<scalar_t>(R, t, nbr_intrinsics), fx, fy, cx, cy, W, H, depth_nbrs.size(2),
-                                depth_nbrs.size(1), grad_phi.data_ptr<scalar_t>(), grad_ref.data_ptr<scalar_t>(),
-                                buffers.data_ptr<scalar_t>());
-    });
-    return {grad_ref, buffers.sum(0)};
-}
-
-namespace {
-
-template <typename T>
-NccArgs<T> ncc_args(const at::Tensor& ref_grey, const at::Tensor& nbr_greys, const at::Tensor& centres,
-                    const at::Tensor& normal, const at::Tensor& distance, double fx, double fy, double cx,
-                    double cy, int64_t patch, double step) {
-    NccArgs<T> g;
-    g.ref = ref_grey.data_ptr<T>(), g.nbr = nbr_greys.data_ptr<T>(), g.centres = centres.data_ptr<T>();
-    g.normal = normal.data_ptr<T>(), g.distance = distance.data_ptr<T>();
-    g.H = ref_grey.size(0), g.W = ref_grey.size(1), g.h = nbr_greys.size(1), g.w = nbr_greys.size(2);
-    g.K = centres.size(0), g.M = centres.size(1), g.patch = patch;
-    g.fx = fx, g.fy = fy, g.cx = cx, g.cy = cy, g.step = step;
-    return g;
-}
-
-void check_patch(int64_t patch) {
-    TORCH_CHECK(patch >= 1 && patch * patch <= 64, "NCC patch of ", patch, "x", patch, ": at most 8x8 here");
-}
-
-}  // namespace
-
-// 1 - NCC (K, M) and where it is defined, for the patches around ``centres`` (K, M, 2; u, v)
-// of the reference grey image (H, W), warped into neighbour k's grey image (K, h, w) by the
-// planes (normal (K, M, 3), distance (K, M)) through the relative poses R, t and intrinsics.
-std::vector<at::Tensor> ncc_forward(at::Tensor ref_grey, at::Tensor nbr_greys, at::Tensor centres,
-                                       at::Tensor normal, at::Tensor distance, at::Tensor R, at::Tensor t,
-                                       at::Tensor nbr_intrinsics, double fx, double fy, double cx, double cy,
-                                       int64_t patch, double step) {
-    check_patch(patch);
-    ref_grey = ref_grey.contiguous(), nbr_greys = nbr_greys.contiguous(), centres = centres.contiguous();
-    normal = normal.contiguous(), distance = distance.contiguous();
-    auto loss = at::empty({centres.size(0), centres.size(1)}, distance.options());
-    auto defined = at::empty({centres.size(0), centres.size(1)}, distance.options().dtype(at::kBool));
-    AT_DISPATCH_FLOATING_TYPES(distance.scalar_type(), "eve3d_ncc_forward", [&] {
-        ncc_forward_impl<scalar_t>(
-            ncc_args<scalar_t>(ref_grey, nbr_greys, centres, normal, distance, fx, fy, cx, cy, patch, step),
-            poses<scalar_t>(R, t, nbr_intrinsics), loss.data_ptr<scalar_t>(), defined.data_ptr<bool>());
-    });
-    return {loss, defined};
-}
-
-// Gradients of the loss for the planes: normal (K, M, 3) and distance (K, M).
-std::vector<at::Tensor> ncc_backward(at::Tensor ref_grey, at::Tensor nbr_greys, at::Tensor centres,
-                                        at::Tensor normal, at::Tensor distance, at::Tensor R,
-                                        at::Tensor t, at::Tensor nbr_intrinsics, double fx, double fy,
-                                        double cx, double cy, int64_t patch, double step, at::Tensor grad_loss) {
-    check_patch(patch);
-    ref_grey = ref_grey.contiguous(), nbr_greys = nbr_greys.contiguous(), centres = centres.contiguous();
-    normal = normal.contiguous(), distance = distance.contiguous(), grad_loss = grad_loss.contiguous();
-    auto g_normal = at::empty_like(normal), g_distance = at::empty_like(distance);
-    AT_DISPATCH_FLOATING_TYPES(distance.scalar_type(), "eve3d_ncc_backward", [&] {
-        ncc_backward_impl<scalar_t>(
-            ncc_args<scalar_t>(ref_grey, nbr_greys, centres, normal, distance, fx, fy, cx, cy, patch, step),
-            poses<scalar_t>(R, t, nbr_intrinsics), grad_loss.data_ptr<scalar_t>(), g_normal.data_ptr<scalar_t>(),
-            g_distance.data_ptr<scalar_t>());
-    });
-    return {g_normal, g_distance};
-}
+}  // namespace eve3d
