@@ -127,9 +127,12 @@ def _cmd_profile(a: argparse.Namespace) -> None:
 
 
 def _cmd_summary(a: argparse.Namespace) -> None:
-    from eve3d.report import run_summary
+    from eve3d.report import run_show, run_summary
 
-    run_summary(a.metrics, out=a.out, failed=a.failed)
+    if a.show:
+        run_show(summary=a.out)
+    else:
+        run_summary(a.metrics, out=a.out, failed=a.failed)
 
 
 def _cmd_report(a: argparse.Namespace) -> None:
@@ -302,6 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("metrics", nargs="*")
     s.add_argument("--out", required=True)
     s.add_argument("--failed", help="JSON rows of scenes and methods whose jobs failed (written by the workflow)")
+    s.add_argument("--show", action="store_true", help="print the tables of the summary.csv at --out, as written")
     s.set_defaults(func=_cmd_summary)
     s = sub.add_parser("profile", help="where a workflow run's wall time went, job by job and inside each job "
                        "(from Snakemake's log of the run and each job's timing line)")

@@ -276,8 +276,7 @@ def run_summary(metrics: list[Path], *, out: Path, failed: Path | None = None) -
     ``failed`` holds the rows of jobs that failed (``eve3d.core.failures``)."""
     import json
 
-    from eve3d.core.layout import (EVALUATION, METRICS_FILE, RECORD, TRAIN_METRICS_FILE, TRAINING, VIEW_COLUMNS,
-                                   format_table, locate)
+    from eve3d.core.layout import EVALUATION, METRICS_FILE, RECORD, TRAIN_METRICS_FILE, TRAINING, VIEW_COLUMNS, locate
     from eve3d.core.scene import Eve3dError
 
     rows, view_rows = [], []
@@ -304,14 +303,43 @@ def run_summary(metrics: list[Path], *, out: Path, failed: Path | None = None) -
         except (OSError, json.JSONDecodeError) as e:
             raise Eve3dError(f"{failed}: cannot read the failed rows ({e})") from None
     rows.sort(key=lambda r: (r["scene"], r["method"]))
+    view_rows.sort(key=lambda r: (r["scene"], r["stage"]))
     out = Path(out)
     _write_csv(out, SUMMARY_COLUMNS, rows)
+    if view_rows:
+        _write_csv(views_table(out), VIEW_COLUMNS, view_rows)
+    print_tables(rows, view_rows)
+
+
+def views_table(summary: Path) -> Path:
+    """``summary_views.csv`` beside ``summary.csv``: the training stages' held-out views."""
+    return summary.with_name(f"{summary.stem}_views.csv")
+
+
+def print_tables(rows: list[dict], view_rows: list[dict]) -> None:
+    """The summary table, and the training stages' held-out views below it."""
+    from eve3d.core.layout import VIEW_COLUMNS, format_table
+
     print(format_table(rows, SUMMARY_COLUMNS))
     if view_rows:
-        view_rows.sort(key=lambda r: (r["scene"], r["stage"]))
-        _write_csv(out.with_name(f"{out.stem}_views.csv"), VIEW_COLUMNS, view_rows)
         print("\nheld-out views of the training stages (at the training resolution)")
         print(format_table(view_rows, VIEW_COLUMNS))
+
+
+def run_show(*, summary: Path) -> None:
+    """``eve3d summary --show``: the tables of a written ``summary.csv`` (and the views' beside
+    it), as the summary printed them, without gathering anything (``make demo`` prints its
+    table last this way)."""
+    from eve3d.core.scene import Eve3dError
+
+    def typed(row: dict) -> dict:  # numbers as numbers, empty cells absent: as the records were
+        return {k: (_number(v) if _number(v) is not None else v) for k, v in row.items() if v not in (None, "")}
+
+    summary = Path(summary)
+    if not summary.is_file():
+        raise Eve3dError(f"{summary}: no summary table (the workflow's summary rule writes it)")
+    views = views_table(summary)
+    print_tables([typed(r) for r in read_rows(summary)], [typed(r) for r in read_rows(views)] if views.is_file() else [])
 
 
 def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:

@@ -52,7 +52,7 @@ def test_stages_use_the_library_and_never_each_other():
 
 
 STAGE_RUNS = {"synth": {"run"}, "sfm": {"run"}, "pretrain": {"run"}, "stereo": {"run_render", "run_depth", "run_export"},
-              "joint": {"run"}, "mesh": {"run"}, "evaluate": {"run", "check"}, "report": {"run_summary", "run"}}
+              "joint": {"run"}, "mesh": {"run"}, "evaluate": {"run", "check"}, "report": {"run_summary", "run_show", "run"}}
 """What each stage exposes to the front (docs/architecture.md, "Stages and the front")."""
 
 
@@ -67,7 +67,7 @@ def test_each_stage_runs_from_its_settings_and_keyword_paths():
             assert name in functions, f"{stage} has no {name}()"
             args = functions[name].args
             assert args.kwonlyargs, f"{stage}.{name}: its paths are keyword arguments"
-            if name not in ("run_summary", "run_export"):  # those two have no settings section
+            if name not in ("run_summary", "run_show", "run_export"):  # these have no settings section
                 assert args.args[0].arg == "settings", f"{stage}.{name}: its settings come first"
 
 

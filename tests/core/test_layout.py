@@ -49,6 +49,10 @@ def test_summary_reads_what_each_record_holds(tmp_path):
                                                                             ("obj", "pgsr", "0.75")]
     views = list(csv.DictReader(open(layout.root / "summary_views.csv")))
     assert [(v["scene"], v["stage"], v["psnr"]) for v in views] == [("obj", "pretrain", "21.5")]
+    shown = run_cli("summary", "--show", "--out", layout.summary())  # the tables again, from the files
+    assert shown.returncode == 0 and shown.stdout == r.stdout, (shown.stdout, r.stdout)
+    missing = run_cli("summary", "--show", "--out", tmp_path / "none.csv")
+    assert missing.returncode == 2 and f"{tmp_path / 'none.csv'}: no summary table" in missing.stderr
 
 
 def test_summary_refuses_a_file_that_does_not_say_what_it_holds(tmp_path):

@@ -79,7 +79,8 @@ def test_a_stage_reads_its_part_of_a_section():
 
 
 def test_defaults_live_once_in_the_settings():
-    """The schema holds no leaf default (only preset, results, methods), and a resolved
+    """The schema holds no leaf default but the workflow's own keys (preset, results, methods,
+    training_jobs: no settings class reads them), and a resolved
     config carries every section whole, with the settings classes' defaults."""
     from eve3d.config import resolve_config
     from eve3d.core.settings import SGM_MODES, SgbmSettings
@@ -96,7 +97,8 @@ def test_defaults_live_once_in_the_settings():
             for value in node:
                 yield from leaf_defaults(value, path)
 
-    assert sorted(leaf_defaults(schema)) == [".properties.methods", ".properties.preset", ".properties.results"]
+    assert sorted(leaf_defaults(schema)) == [".properties.methods", ".properties.preset", ".properties.results",
+                                          ".properties.training_jobs"]
     config = resolve_config({"scenes": {"a": {"synthetic": {"kind": "object", "views": 8}}},
                              "stereo": {"sgm_mode": "3way"}})
     for section, cls in SECTIONS.items():
