@@ -36,6 +36,8 @@ class Job:
     wildcards: str = ""
     jobid: int = -1
     threads: int = 1
+    priority: float = 0
+    """Snakemake's priority of the job (the longest chain's jobs start first)."""
     log: str = ""
     benchmark: str = ""
     ended: float | None = None
@@ -65,8 +67,8 @@ class Run:
 
 
 GATHERING_RULES = ("all", "summary", "report_pages")
-"""Rules that only gather results: a run of these alone (``make demo`` reruns ``summary`` to
-print the table last) is not the run a profile is asked for."""
+"""Rules that only gather results: a run of these alone (a rerun of ``summary`` after a
+change of its code) is not the run a profile is asked for."""
 
 
 def latest_log(workdir: Path) -> Path:
@@ -130,8 +132,8 @@ def log_jobs(lines: list[str]) -> list[Job]:
                 current.wildcards = value
             elif key in ("log", "benchmark"):
                 setattr(current, key, value.split(", ")[0])
-            elif key == "threads":
-                current.threads = int(value)
+            elif key in ("threads", "priority"):
+                setattr(current, key, type(getattr(current, key))(value))
         elif m := _FINISHED.match(line):
             if (job := jobs.get(int(m.group(1)))) is not None:
                 job.ended = now

@@ -101,15 +101,20 @@ def test_training_and_network_jobs_take_their_share_of_the_cores(tmp_path, cores
     """The pretrain takes every core (it starts first); a joint stage's job and a stereo
     network's take the cores over ``training_jobs``: every core by default, one each on 2
     cores in the demo, where pgsr trains beside the chain pretrain → stereo → eve3d."""
-    cfg = write_config(tmp_path, methods=["pgsr", "eve3d"], stereo={"backend": "hitnet"},
+    cfg = write_config(tmp_path, methods=["stereo-tsdf", "pgsr", "eve3d"], stereo={"backend": "hitnet"},
                        scenes={"s": {"synthetic": {"kind": "object"}}}, training_jobs=training_jobs)
     r = snakemake("-n", f"-c{cores}", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
-    threads = {job.title: job.threads for job in log_jobs((r.stdout + r.stderr).splitlines())}
+    jobs = {job.title: job for job in log_jobs((r.stdout + r.stderr).splitlines())}
+    threads = {title: job.threads for title, job in jobs.items()}
     shared = ("joint s pgsr", "joint s eve3d", "stereo-depth s hitnet")
     assert threads["pretrain s"] == cores
     assert {t: threads[t] for t in shared} == dict.fromkeys(shared, cores // training_jobs), threads
     assert threads["stereo-render s"] == 1 and threads["mesh s eve3d"] == 1
+    # the longest chain first, and the trained methods' meshes and scores before the others'
+    assert jobs["pretrain s"].priority > jobs["stereo-render s"].priority > jobs["joint s eve3d"].priority > 0
+    assert [jobs[f"{rule} s {m}"].priority for rule in ("mesh", "evaluate") for m in ("pgsr", "eve3d")] == [1] * 4
+    assert [jobs[f"{rule} s stereo-tsdf"].priority for rule in ("mesh", "evaluate")] == [0, 0]
 
 
 def test_slurm_profile_dry_runs_without_slurm(tmp_path):

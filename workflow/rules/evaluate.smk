@@ -31,6 +31,7 @@ rule evaluate:
         LAYOUT.log("{scene}", "evaluate", "{method}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "evaluate", "{method}"),
+    priority: after_training
     conda:
         CONDA_ENV
     shell:

@@ -13,6 +13,7 @@ rule mesh:
         LAYOUT.log("{scene}", "mesh", "{method}"),
     benchmark:
         LAYOUT.benchmark("{scene}", "mesh", "{method}"),
+    priority: after_training
     conda:
         CONDA_ENV
     shell:
