@@ -13,7 +13,9 @@ UV := UV_LINK_MODE=copy $(BIN)/uv pip install -q --python $(BIN)/python
 .PHONY: demo test check install clean
 
 RESULTS := results
-REPORT := $(RESULTS)/report.html
+# Snakemake's folder report (--report FILE.zip), unpacked: the single-file report cannot show
+# the 3D views (README, "The report")
+REPORT := $(RESULTS)/report_folder.zip
 PSMNET := $(HOME)/.cache/eve3d/psmnet/pretrained_model_KITTI2015.tar
 # HITNet's ETH3D weights (data, never in the repository; docs/priors.md says where they come
 # from): make demo HITNET=FILE trains on their priors; by default the demo's priors are sgbm's
@@ -26,9 +28,10 @@ demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print t
 	@echo $(if $(HITNET),"priors: HITNet ($(HITNET))","priors: sgbm (HITNet's: make demo HITNET=hitnet_eth3d_480x640.onnx, docs/priors.md)")
 	$(BIN)/snakemake -c$(JOBS) --logger eve3d $(PRIORS)
 	@$(BIN)/snakemake -c1 --quiet all --report $(REPORT) $(PRIORS)
+	@rm -rf $(REPORT:.zip=) && $(BIN)/python -m zipfile -e $(REPORT) $(REPORT:.zip=)
 	@# the table last (the summary job printed it among the jobs' lines)
 	@$(BIN)/eve3d summary --show --out $(RESULTS)/summary.csv
-	@echo "report: $(REPORT) (open it in a browser)"
+	@echo "report: $(REPORT:.zip=)/report/report.html (open it in a browser; $(REPORT) holds it whole)"
 
 # One pytest-xdist worker more than cores: much of a workflow test is waiting (Slurm's status
 # checks, a chain of jobs each starting Python), which the other workers' tests fill (on 2

@@ -141,7 +141,7 @@ def _cmd_report(a: argparse.Namespace) -> None:
 
     config = _config(a)
     run(_settings(a, StereoSettings, "stereo", config), config.get("benchmark"), results=a.results, out=a.out,
-        datasets=dict(a.dataset))
+        datasets=dict(a.dataset), ground_truth=dict(a.gt))
 
 
 def _cmd_bench_rasterizer(a: argparse.Namespace) -> None:
@@ -222,7 +222,7 @@ def _rasterizer_sizes(text: str) -> list[tuple[int, int, int]]:
 def _scene_folder(text: str) -> tuple[str, str]:
     scene, sep, folder = text.partition("=")
     if not sep:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected SCENE=FOLDER")
+        raise argparse.ArgumentTypeError(f"{text!r}: expected SCENE=PATH")
     return scene, folder
 
 
@@ -315,9 +315,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_profile)
     s = sub.add_parser("report", help="the report's pages from a results folder (snakemake --report gathers them)")
     s.add_argument("--results", required=True, help="the results folder (its summary.csv and benchmark files)")
-    s.add_argument("--out", required=True, help="folder for summary.html, runtimes.html, charts/, scenes/")
+    s.add_argument("--out", required=True, help="folder for summary.html, runtimes.html, charts/, scenes/, scenes3d/")
     s.add_argument("--dataset", action="append", default=[], type=_scene_folder, metavar="SCENE=FOLDER",
-                   help="a scene's posed dataset (its first photo heads the scene's sheets); repeat per scene")
+                   help="a scene's posed dataset (its first photo heads the scene's sheets, its cameras are "
+                   "drawn in its 3D view); repeat per scene")
+    s.add_argument("--gt", action="append", default=[], type=_scene_folder, metavar="SCENE=FILE",
+                   help="a scene's GT surface (mesh or point cloud), shown in its 3D view; repeat per scene")
     _config_arguments(s)  # stereo.backend: the priors shown; benchmark: its published figures join the means
     s.set_defaults(func=_cmd_report)
     _add_bench_parser(sub)

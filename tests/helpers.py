@@ -177,27 +177,35 @@ BENIGN_CONSOLE = ("cdn.tailwindcss.com should not be used in production",)
 """A warning Snakemake's report logs about its inlined stylesheet framework."""
 
 
-def decodes(data_uri: str) -> bool:
-    """Whether the raster image of a ``data:`` URI decodes whole (PIL)."""
+def decodes(uri: str, folder: Path) -> bool:
+    """Whether the raster image of a ``data:`` URI, or of a file a folder report holds at
+    ``uri`` (relative to its ``folder``), decodes whole (PIL)."""
     import base64
     import io
 
     from PIL import Image
 
-    head, _, data = data_uri.partition(",")
+    head, _, data = uri.partition(",")
     try:
-        with Image.open(io.BytesIO(base64.b64decode(data) if head.endswith(";base64") else data.encode())) as im:
+        if not uri.startswith("data:"):
+            raw = (folder / uri).read_bytes()
+        else:
+            raw = base64.b64decode(data) if head.endswith(";base64") else data.encode()
+        with Image.open(io.BytesIO(raw)) as im:
             im.load()
         return True
     except Exception:
         return False
 
 
-def open_report(report: Path, screenshot: Path | None = None) -> dict:
-    """Load Snakemake's HTML report in headless Chromium and read what a person sees: the
-    rows of the summary page's ``#summary`` table (its cells), how many image results it
-    holds and how many of them failed to decode once shown, and every resource that failed
-    to load, console error, page error or request that left the file."""
+def open_report(report: Path, screenshot: Path | None = None, views3d: bool = True) -> dict:
+    """Load Snakemake's HTML report in headless Chromium (the single file, or the
+    ``report.html`` of a folder report unpacked from ``--report FILE.zip``) and read what a
+    person sees: the rows of the summary page's tables (``table.summary``: their cells), how
+    many image results it holds and how many of them failed to decode once shown, with
+    ``views3d`` the share of each 3D view's picture that is not its background (a folder
+    report's: the single file cannot show them, README), and every resource that failed to
+    load, console error, page error or request that left the file."""
     from playwright.sync_api import expect, sync_playwright
 
     problems: list[str] = []
@@ -214,10 +222,12 @@ def open_report(report: Path, screenshot: Path | None = None) -> dict:
         results = page.evaluate("Object.keys(results).map(p => [p, results[p].mime_type])")
         summary = next(path for path, mime in results if path.endswith("report/summary.html"))
         page.evaluate("p => app.setView({content: 'html', contentPath: results[p].data_uri, resultPath: p})", summary)
-        table = page.frame_locator("iframe").locator("table#summary")
-        expect(table).to_be_visible()
-        header = table.locator("thead th").all_inner_texts()
-        rows = [dict(zip(header, row.split("\t"))) for row in table.locator("tbody tr").all_inner_texts()]
+        tables = page.frame_locator("iframe").locator("table.summary")
+        expect(tables.first).to_be_visible()
+        rows = []
+        for table in tables.all():  # one a protocol, and one of the failed jobs
+            header = table.locator("thead th").all_inner_texts()
+            rows += [dict(zip(header, row.split("\t"))) for row in table.locator("tbody tr").all_inner_texts()]
         if screenshot is not None:
             page.screenshot(path=str(screenshot), full_page=True)
         images, broken = [path for path, mime in results if mime.startswith("image/")], []
@@ -228,9 +238,42 @@ def open_report(report: Path, screenshot: Path | None = None) -> dict:
             expect(img).to_be_visible()
             shown = img.evaluate("i => i.decode().then(() => i.naturalWidth > 0, () => false)")
             # A browser shows what it can of a truncated PNG; the embedded bytes must decode whole.
-            if not shown or not decodes(uri):
+            if not shown or not decodes(uri, report.parent):
                 broken.append(path)
         if screenshot is not None and images:
             page.screenshot(path=str(screenshot.with_name(screenshot.stem + "_image.png")))
+        seen3d = {}
+        for path in [path for path, mime in results if views3d and "/scenes3d/" in path]:  # as a reader opens it
+            page.evaluate("p => app.setView({content: 'html', contentPath: results[p].data_uri, resultPath: p})", path)
+            view = page.frame_locator("iframe").locator(".gl-container canvas").first
+            view.wait_for(timeout=60_000)
+            page.wait_for_timeout(1000)
+            seen3d[path] = nonbackground(view.screenshot(), VIEW3D_BACKGROUND)
+            if screenshot is not None:
+                page.screenshot(path=str(screenshot.with_name(f"{screenshot.stem}_3d_{Path(path).stem}.png")))
         browser.close()
-    return {"rows": rows, "images": images, "broken": broken, "problems": problems}
+    return {"rows": rows, "images": images, "broken": broken, "problems": problems, "views3d": seen3d}
+
+
+def folder_report(archive: Path) -> Path:
+    """The ``report.html`` of Snakemake's folder report ``archive`` (``--report FILE.zip``),
+    unpacked beside it, as ``make demo`` does."""
+    import zipfile
+
+    folder = archive.with_suffix("")
+    zipfile.ZipFile(archive).extractall(folder)
+    return folder / "report" / "report.html"
+
+
+VIEW3D_BACKGROUND = (205, 208, 218)
+"""eve3d.report.views3d.BACKGROUND, as RGB."""
+
+
+def nonbackground(png: bytes, background: tuple[int, int, int]) -> float:
+    """The fraction of a screenshot's pixels more than 12 grey levels off ``background``."""
+    import io
+
+    from PIL import Image
+
+    image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    return float((np.abs(image - background).max(-1) > 12).mean())

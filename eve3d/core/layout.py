@@ -61,7 +61,7 @@ RECORD = "record"
 EVALUATION = "evaluation"
 TRAINING = "training"
 
-SUMMARY_COLUMNS = ("scene", "method", "protocol", "tau", "points", "accuracy", "completeness", "chamfer",
+SUMMARY_COLUMNS = ("scene", "method", "protocol", "unit", "tau", "points", "accuracy", "completeness", "chamfer",
                    "precision", "recall", "fscore", "depth_signed_error", "depth_error", "depth_on_empty", "psnr",
                    "ssim", "failed", "log")
 """The columns of ``summary.csv`` (``eve3d summary``) and of the report's table; a row whose

@@ -43,6 +43,12 @@ class Method:
         return self.fuses is None
 
     @property
+    def upper_bound(self) -> bool:
+        """It fuses the exact depth: a ceiling for the others, not one of them (the report
+        does not rank it)."""
+        return self.fuses == "oracle"
+
+    @property
     def device(self) -> str:
         """What a cluster job of the method asks for: trained methods train on a GPU, fusing
         depth made elsewhere needs none."""

@@ -63,6 +63,8 @@ class Protocol:
     cannot be scored."""
     joint_settings: dict = field(default_factory=dict)
     """What the protocol asks of the joint stage's training (nvs: views held out)."""
+    unit: str | None = None
+    """The unit of its distances (τ, accuracy, completeness, Chamfer); None: it measures none."""
     check: str = ""
     """``module:function`` that checks, before any training, that the ground truth lines up
     with the scene's cameras (raises :class:`Eve3dError` naming the file; returns what it
@@ -87,7 +89,7 @@ class Protocol:
                              f"dataset, this one is {fmt}")
         module, function = entry.split(":")
         metrics = getattr(importlib.import_module(f"eve3d.evaluate.{module}"), function)(inputs)
-        return {"protocol": self.name, **metrics, "evaluator": f"eve3d.evaluate.{module}.{function}",
+        return {"protocol": self.name, "unit": self.unit, **metrics, "evaluator": f"eve3d.evaluate.{module}.{function}",
                 "versions": library_versions()}
 
 
@@ -117,12 +119,12 @@ def library_versions() -> dict[str, str]:
 
 PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (
     Protocol("synthetic", "GT mesh: visible GT surface, exact point-to-triangle distances, F-score at τ",
-             "mesh", "synthetic:evaluate_synthetic", {"gt": "gt_mesh"}, own_poses=True),
+             "mesh", "synthetic:evaluate_synthetic", {"gt": "gt_mesh"}, own_poses=True, unit="scene units"),
     Protocol("dtu", "DTUeval-python: mask culling, 0.2 mm sampling, ObsMask crop, Chamfer in mm",
              "mesh", "dtu:evaluate_dtu", {"gt": "dtu.stl", "obs_mask": "dtu.obs_mask", "plane": "dtu.plane"},
-             formats=("dtu",), check="dtu:check_alignment"),
+             formats=("dtu",), unit="mm", check="dtu:check_alignment"),
     Protocol("tnt", "Tanks and Temples toolbox: trajectory alignment, ICP, polygon crop, F-score at τ",
-             "mesh", "tnt:evaluate_tnt", formats=("tnt",), own_poses=True, check="tnt:check_alignment"),
+             "mesh", "tnt:evaluate_tnt", formats=("tnt",), own_poses=True, unit="m", check="tnt:check_alignment"),
     Protocol("nvs", "held-out views (every 8th, Mip-NeRF 360): PSNR and SSIM of the rendered model",
              "model", "nvs:evaluate_views", joint_settings={"holdout": 8}),
 )}

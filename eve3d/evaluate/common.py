@@ -7,6 +7,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from eve3d.core.chunking import chunks
+from eve3d.core.colormap import hot_r
 from eve3d.core.scene import Eve3dError
 
 
@@ -67,25 +68,12 @@ COLOUR_RANGE = 3.0
 ERROR_MAP_POINTS = 200_000
 """Points written per error map at most (a uniform subset of those scored): enough to see
 where a surface is off, 5 MB per file."""
-_HOT = ((0.0, 0.365079, 1.0), (0.0416, 1.0, 1.0),                 # red
-        (0.0, 0.365079, 0.746032, 1.0), (0.0, 0.0, 1.0, 1.0),      # green
-        (0.0, 0.746032, 1.0), (0.0, 0.0, 1.0))                     # blue
-
-
-def hot_r(x: np.ndarray) -> np.ndarray:
-    """matplotlib's ``hot_r`` colormap (N,) → RGB (N,3) without matplotlib: ``hot``'s
-    piecewise-linear channels, reversed, read from a 256-entry table as matplotlib does."""
-    x = np.asarray(x, dtype=np.float64)
-    index = np.clip(np.floor(np.nan_to_num(x, nan=0.0) * 256), 0, 255)
-    u = 1.0 - index / 255.0   # reversed map: hot at 1 - x
-    return np.stack([np.interp(u, _HOT[2 * c], _HOT[2 * c + 1]) for c in range(3)], axis=-1)
-
-
 def write_error_maps(folder: Path, recon: np.ndarray, recon_distances: np.ndarray, gt: np.ndarray,
-                     gt_distances: np.ndarray, top: float) -> None:
+                     gt_distances: np.ndarray, top: float) -> dict:
     """``precision.ply`` (our scored points) and ``recall.ply`` (the GT's) in ``folder``,
     coloured by distance to the other side from white (0) to black (``top`` and beyond),
-    written atomically; at most :data:`ERROR_MAP_POINTS` of each."""
+    written atomically; at most :data:`ERROR_MAP_POINTS` of each. Returns the metrics'
+    record of the scale (``error_map_top``), for a viewer's colour bar."""
     import open3d as o3d
 
     from eve3d.core.fileio import atomic_path
@@ -98,3 +86,4 @@ def write_error_maps(folder: Path, recon: np.ndarray, recon_distances: np.ndarra
         with atomic_path(Path(folder) / f"{name}.ply") as tmp:
             if not o3d.io.write_point_cloud(str(tmp), cloud):
                 raise Eve3dError(f"{folder}/{name}.ply: could not write the point cloud")
+    return {"error_map_top": float(top)}

@@ -213,7 +213,7 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     if not len(near_d2s) or not len(near_s2d):
         raise Eve3dError(f"{inputs.reconstruction}: no point of the mesh inside the ObsMask lies within "
                          f"{s.dtu_max_dist:g} mm of {inputs.gt}: is the mesh in the scan's normalised frame?")
-    write_error_maps(Path(inputs.out).parent, data_in_obs, d2s, stl_above, s2d, ERROR_MAP_MM)
+    maps = write_error_maps(Path(inputs.out).parent, data_in_obs, d2s, stl_above, s2d, ERROR_MAP_MM)
     acc, comp = float(near_d2s.mean()), float(near_s2d.mean())
     return {"accuracy": acc, "completeness": comp, "chamfer": (acc + comp) / 2,
-            "n_recon": int(len(data_in_obs)), "n_gt": int(len(stl_above))}
+            "n_recon": int(len(data_in_obs)), "n_gt": int(len(stl_above)), **maps}

@@ -80,8 +80,8 @@ def evaluate_synthetic(inputs: EvalInputs) -> dict:
                                            s.samples, rng)
     to_gt, to_recon = mesh_distances(gt_mesh, recon), mesh_distances(recon_mesh, gt)
     metrics = distance_metrics(to_gt, to_recon, tau)
-    write_error_maps(Path(inputs.out).parent, recon, to_gt, gt, to_recon, COLOUR_RANGE * tau)
-    return {"tau": tau, "tau_rule": rule, **metrics, "n_recon": int(len(recon)), "n_gt": int(len(gt)),
+    maps = write_error_maps(Path(inputs.out).parent, recon, to_gt, gt, to_recon, COLOUR_RANGE * tau)
+    return {"tau": tau, "tau_rule": rule, **metrics, **maps, "n_recon": int(len(recon)), "n_gt": int(len(gt)),
             "visible_gt_fraction": visible_fraction, "visible_rule": f"seen by at least {s.min_views} camera(s)",
             "crop": {"box_min": (lo - tau).tolist(), "box_max": (hi + tau).tolist(),
                      "rule": "visible-GT bounding box grown by tau", "recon_area_fraction_left_out": 1 - inside_fraction}}

@@ -288,9 +288,9 @@ def evaluate_tnt(inputs: EvalInputs) -> dict:
     transform = refine_alignment(recon_pcd, gt_pcd, rough, volume, tau)
     result = score(recon_pcd, gt_pcd, transform, volume, tau)
     folder = Path(inputs.out).parent
-    write_error_maps(folder, np.asarray(result.recon.points), result.recon_distances, np.asarray(result.gt.points),
-                     result.gt_distances, COLOUR_RANGE * tau)
-    return {"tau": tau, "tau_rule": tau_rule, "points": settings.tnt_points,
+    maps = write_error_maps(folder, np.asarray(result.recon.points), result.recon_distances,
+                            np.asarray(result.gt.points), result.gt_distances, COLOUR_RANGE * tau)
+    return {"tau": tau, "tau_rule": tau_rule, "points": settings.tnt_points, **maps,
             "precision": result.precision, "recall": result.recall, "fscore": fscore(result.precision, result.recall),
             "n_recon": len(result.recon.points), "n_gt": len(result.gt.points),
             "transformation": transform.tolist(),   # ours → GT frame

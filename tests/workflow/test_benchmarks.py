@@ -15,7 +15,7 @@ from eve3d.core.layout import EVALUATION, RECORD, TRAINING, Layout
 from eve3d.core.scene import Eve3dError
 from eve3d.synth import generate
 from eve3d.tools.standin import STANDIN_SCENE, write_log, write_standin
-from tests.helpers import TINY_START, open_report, run_cli, snakemake
+from tests.helpers import TINY_START, folder_report, open_report, run_cli, snakemake
 
 BENCHMARK_SCENES = {
     "dtu": ["scan24", "scan37", "scan40", "scan55", "scan63", "scan65", "scan69", "scan83", "scan97", "scan105",
@@ -225,17 +225,25 @@ def test_each_benchmark_runs_end_to_end(downloads, tmp_path, name):
     if name in ("dtu", "tnt"):
         check = json.loads(layout.ground_truth_check(scene).read_text())
         assert check["protocol"] == name
-    # the report: Snakemake gathers the pages into one file, which a browser shows whole
-    r = snakemake("-c1", "--configfile", str(cfg), "--replace-workflow-config", "--report", str(layout.report()))
+    # the report: Snakemake gathers the pages into a folder report, which a browser shows whole
+    archive = layout.report().with_suffix(".zip")
+    r = snakemake("-c1", "--configfile", str(cfg), "--replace-workflow-config", "--report", str(archive))
     assert r.returncode == 0, r.stderr[-3000:]
-    seen = open_report(layout.report(), tmp_path / "report.png")
+    report = folder_report(archive)
+    seen = open_report(report, tmp_path / "report.png")
     assert sorted((row["scene"], row["method"]) for row in seen["rows"]) == sorted((scene, m) for m in trained)
     sheets = [p for p in seen["images"] if "/report/scenes/" in p]
     assert len(sheets) == len(trained) and any(p.endswith("charts/runtimes.png") for p in seen["images"])
     assert seen["broken"] == [] and seen["problems"] == []
-    if name == "tnt":  # and the browser check sees an image that does not decode
+    assert list(seen["views3d"]) == [str(layout.report_pages() / "scenes3d" / f"{scene}.html")]
+    assert seen["views3d"][str(layout.report_pages() / "scenes3d" / f"{scene}.html")] > 0.02  # not blank
+    page3d = (layout.report_pages() / "scenes3d" / f"{scene}.html").read_text()
+    # the cameras always; the GT where the config names it (T&T's the evaluator finds in the download)
+    assert '"name":"cameras"' in page3d and ('"name":"GT"' in page3d) == (name == "dtu")
+    if name == "tnt":  # the single file, and the browser check sees an image that does not decode
         chart = layout.report_pages() / "charts" / "fscore.png"
         chart.write_bytes(chart.read_bytes()[:200])
         r = snakemake("-c1", "--configfile", str(cfg), "--replace-workflow-config", "--report", str(tmp_path / "b.html"))
         assert r.returncode == 0, r.stderr[-3000:]
-        assert open_report(tmp_path / "b.html")["broken"] == [str(chart)]
+        single = open_report(tmp_path / "b.html", views3d=False)
+        assert single["broken"] == [str(chart)] and single["problems"] == []

@@ -307,10 +307,18 @@ def evaluate_args(wildcards, input):
 
 
 def report_args(wildcards):
-    """Each scene's posed dataset (its first photo heads the report's sheets), and the job
-    config: `stereo` (the priors shown) and the benchmark whose published figures join the means."""
+    """Each scene's posed dataset (its first photo heads the report's sheets, its cameras are
+    drawn in the 3D view), its GT surface where its protocol has one, and the job config:
+    `stereo` (the priors shown) and the benchmark whose published figures join the means."""
     from types import SimpleNamespace
 
-    args = [f"--dataset {shlex.quote(f'{s}={posed_dataset(SimpleNamespace(scene=s))}')}" for s in SCENES]
+    args = []
+    for s in SCENES:
+        scene = SimpleNamespace(scene=s)
+        args.append(f"--dataset {shlex.quote(f'{s}={posed_dataset(scene)}')}")
+        key = PROTOCOL[s].config_inputs.get("gt")
+        if key:
+            gt = gt_mesh(scene) if key == "gt_mesh" else scene_value(scene_config(s), key)
+            args.append(f"--gt {shlex.quote(f'{s}={gt}')}")
     benchmark = {"benchmark": config["benchmark"]} if config.get("benchmark") else {}
     return " ".join(args + ["--config", job_config("stereo", **benchmark)])
