@@ -216,3 +216,38 @@ def test_a_scene_in_3d_renders_in_the_browser_offline(tmp_path):
     assert problems == []
     assert nonbackground(first, VIEW3D_BACKGROUND) > 0.05 and nonbackground(second, VIEW3D_BACKGROUND) > 0.05
     assert first != second
+
+
+def test_error_points_scored_in_the_gt_frame_come_back_to_the_scene(tmp_path, monkeypatch):
+    """T&T scores in its GT's frame (metrics.json's ``transformation``: ours → GT, a similarity):
+    the 3D view carries that method's error points and the GT back onto its mesh."""
+    import json
+
+    import open3d as o3d
+
+    import eve3d.report.views3d as views3d
+    from eve3d.core.layout import Layout
+
+    layout = Layout(tmp_path / "results")
+    ours = np.random.default_rng(0).normal(size=(3000, 3))
+    ours /= np.linalg.norm(ours, axis=1, keepdims=True)  # on our mesh, the unit sphere
+    angle, scale = 0.7, 2.5
+    to_gt = np.eye(4)
+    to_gt[:3, :3] = scale * np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    to_gt[:3, 3] = [10.0, -4.0, 3.0]
+    in_gt = ours @ to_gt[:3, :3].T + to_gt[:3, 3]
+    layout.method("barn", "eve3d").mkdir(parents=True)
+    o3d.io.write_triangle_mesh(str(layout.mesh("barn", "eve3d")), o3d.geometry.TriangleMesh.create_sphere(1.0))
+    errors = np.full(len(ours), 0.01)
+    maps = write_error_maps(layout.method("barn", "eve3d"), in_gt, errors, in_gt, errors, 0.03)
+    layout.metrics("barn", "eve3d").write_text(json.dumps({**maps, "transformation": to_gt.tolist()}))
+    gt = tmp_path / "gt.ply"
+    o3d.io.write_point_cloud(str(gt), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(in_gt)))
+    figures = []
+    monkeypatch.setattr(views3d, "write_scene_view", lambda fig, out: figures.append(fig))
+    assert views3d.scene_view(layout, "barn", ["eve3d"], ("mm", 1e3), gt, [], tmp_path / "barn.html")
+    points = [trace for trace in figures[0].data if trace.type == "scatter3d"]
+    assert sorted(trace.name for trace in points) == ["GT", "eve3d precision errors", "eve3d recall errors"]
+    for trace in points:  # on the unit sphere again
+        radius = np.linalg.norm(np.c_[trace.x, trace.y, trace.z], axis=1)
+        assert np.abs(radius - 1).max() < 1e-4, trace.name

@@ -396,7 +396,11 @@ def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backen
     for folder in ("scenes", "scenes3d"):  # the rule's outputs, even where no scene has a page
         (out / folder).mkdir(parents=True, exist_ok=True)
     for scene in sorted({r["scene"] for r in rows}):
-        cameras = load_scene(datasets[scene], check_images=False).cameras if scene in datasets else []
+        loaded = load_scene(datasets[scene], check_images=False) if scene in datasets else None
+        cameras = loaded.cameras if loaded else []
+        # the GT surface: the config's (--gt), or the one the dataset's layout names (T&T's points)
+        gt = (ground_truth or {}).get(scene) or (Path(loaded.extras["gt_points"]) if loaded and
+                                                 "gt_points" in (loaded.extras or {}) else None)
         photo = cameras[0].image_path if cameras else None
         methods = sorted((r["method"] for r in rows if r["scene"] == scene), key=lambda m: (not _ranked(m), m))
         with phase("scene sheets"):
@@ -409,8 +413,7 @@ def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backen
         unit = next((r.get("unit") for r in rows if r["scene"] == scene and r.get("unit")), None)
         label, _, factor = DISTANCE_SHOWN.get(unit, (unit or "", "", 1.0))
         with phase("3D views"):
-            if scene_view(layout, scene, methods, (label, factor), (ground_truth or {}).get(scene), cameras,
-                          out / "scenes3d" / f"{scene}.html"):
+            if scene_view(layout, scene, methods, (label, factor), gt, cameras, out / "scenes3d" / f"{scene}.html"):
                 written.append(out / "scenes3d" / f"{scene}.html")
     return written
 

@@ -107,9 +107,12 @@ def frusta(cameras: Sequence[Camera], size: float) -> np.ndarray:
 
 
 def scene_figure(scene: str, meshes: Mapping[str, Path], errors: Mapping[str, tuple[Path, Path]],
-                 top: float | None, unit: str, gt: Path | None, cameras: Sequence[Camera]):
+                 top: float | None, unit: str, gt: Path | None, cameras: Sequence[Camera],
+                 frames: Mapping[str, np.ndarray] | None = None):
     """The plotly figure of the module docstring. ``meshes``: method → mesh; ``errors``:
-    method → (precision.ply, recall.ply); ``top``: the distance at the end of their colour
+    method → (precision.ply, recall.ply); ``frames``: method → the 4×4 transform from the
+    frame its error maps and the GT are in to the scene's (T&T scores in the GT's frame;
+    none: the scene's own); ``top``: the distance at the end of their colour
     scale, in ``unit``; ``gt``: the GT surface (a mesh or a point cloud)."""
     import plotly.graph_objects as go
 
@@ -125,7 +128,7 @@ def scene_figure(scene: str, meshes: Mapping[str, Path], errors: Mapping[str, tu
         owner.append(method)
         for side, ply in zip(("precision", "recall"), errors.get(method, ())):
             points, fraction = error_points(ply)
-            p = points.vertices
+            p = to_scene(points.vertices, (frames or {}).get(method))
             traces.append(go.Scatter3d(
                 x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="markers", name=f"{method} {side} errors", legendgroup=method,
                 visible="legendonly",
@@ -138,7 +141,7 @@ def scene_figure(scene: str, meshes: Mapping[str, Path], errors: Mapping[str, tu
     if gt is not None:
         surface = reduced_surface(gt)
         notes.append(surface.note("GT"))
-        v = surface.vertices
+        v = to_scene(surface.vertices, next(iter((frames or {}).values()), None))
         if surface.faces is not None:
             f = surface.faces
             traces.append(go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], name="GT",
@@ -173,6 +176,13 @@ def scene_figure(scene: str, meshes: Mapping[str, Path], errors: Mapping[str, tu
         updatemenus=[{"type": "buttons", "direction": "right", "x": 0, "y": 1.0, "xanchor": "left",
                       "buttons": buttons, "showactive": True}] if len(buttons) > 1 else [])
     return fig
+
+
+def to_scene(points: np.ndarray, transform: np.ndarray | None) -> np.ndarray:
+    """``points`` (N, 3) carried by the 4×4 ``transform`` (None: as they are)."""
+    if transform is None:
+        return points
+    return (points @ transform[:3, :3].T + transform[:3, 3]).astype(np.float32)
 
 
 def first_view(cameras: Sequence[Camera]) -> dict:
@@ -215,17 +225,20 @@ def scene_view(layout, scene: str, methods: Sequence[str], unit: tuple[str, floa
     meshes = {m: layout.mesh(scene, m) for m in methods if layout.mesh(scene, m).is_file()}
     if not meshes:
         return False
-    errors, top = {}, None
+    errors, frames, top = {}, {}, None
     for method in meshes:
         folder = layout.method(scene, method)
         maps = (folder / "precision.ply", folder / "recall.ply")
         if all(p.is_file() for p in maps):
             errors[method] = maps
             try:
-                top = top or json.loads(layout.metrics(scene, method).read_text()).get("error_map_top")
+                record = json.loads(layout.metrics(scene, method).read_text())
             except (OSError, ValueError):
-                pass  # no scale recorded (older results): the colour bar reads in fractions of it
+                continue  # no scale recorded (older results): the colour bar reads in fractions of it
+            top = top or record.get("error_map_top")
+            if "transformation" in record:  # T&T: ours → the GT's frame, where it scored
+                frames[method] = np.linalg.inv(np.asarray(record["transformation"], dtype=np.float64))
     fig = scene_figure(scene, meshes, errors, top * unit[1] if top else None, unit[0],
-                       gt if gt is not None and gt.is_file() else None, cameras)
+                       gt if gt is not None and gt.is_file() else None, cameras, frames)
     write_scene_view(fig, out)
     return True

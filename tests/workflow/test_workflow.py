@@ -226,8 +226,9 @@ def assert_profile(log: str) -> None:
     run = read_run(Path(log))
     stages = [j for j in run.jobs if j.rule not in ("summary", "report_pages", "check_ground_truth")]
     assert stages and all(j.phases for j in stages), [j.title for j in stages if not j.phases]
-    for job in stages:
-        assert sum(v for k, v in job.phases.items() if k != "total") == pytest.approx(job.phases["total"], abs=0.3)
+    for job in stages:  # each figure printed to 0.1 s: the sum of n of them is off by up to n × 0.05
+        shown = [v for k, v in job.phases.items() if k != "total"]
+        assert sum(shown) == pytest.approx(job.phases["total"], abs=0.05 * (len(shown) + 1) + 1e-9)
         assert job.phases["total"] <= job.wall + 1.5 and job.phases["start-up"] > 0
     assert all(j.phases["steps"] > 0 for j in stages if j.rule in ("pretrain", "joint"))
 
