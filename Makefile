@@ -28,10 +28,10 @@ demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print t
 	@echo $(if $(HITNET),"priors: HITNet ($(HITNET))","priors: sgbm (HITNet's: make demo HITNET=hitnet_eth3d_480x640.onnx, docs/priors.md)")
 	$(BIN)/snakemake -c$(JOBS) --logger eve3d $(PRIORS)
 	@$(BIN)/snakemake -c1 --quiet all --report $(REPORT) $(PRIORS)
-	@rm -rf $(REPORT:.zip=) && $(BIN)/python -m zipfile -e $(REPORT) $(REPORT:.zip=)
+	@rm -rf $(REPORT:.zip=) && $(BIN)/python -m zipfile -e $(REPORT) $(RESULTS)
 	@# the table last (the summary job printed it among the jobs' lines)
 	@$(BIN)/eve3d summary --show --out $(RESULTS)/summary.csv
-	@echo "report: $(REPORT:.zip=)/report/report.html (open it in a browser; $(REPORT) holds it whole)"
+	@echo "report: $(REPORT:.zip=)/report.html (open it in a browser; $(REPORT) holds it whole)"
 
 # One pytest-xdist worker more than cores: much of a workflow test is waiting (Slurm's status
 # checks, a chain of jobs each starting Python), which the other workers' tests fill (on 2

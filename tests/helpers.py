@@ -257,12 +257,11 @@ def open_report(report: Path, screenshot: Path | None = None, views3d: bool = Tr
 
 def folder_report(archive: Path) -> Path:
     """The ``report.html`` of Snakemake's folder report ``archive`` (``--report FILE.zip``),
-    unpacked beside it, as ``make demo`` does."""
+    unpacked beside it as ``make demo`` does: into the folder the archive is named after."""
     import zipfile
 
-    folder = archive.with_suffix("")
-    zipfile.ZipFile(archive).extractall(folder)
-    return folder / "report" / "report.html"
+    zipfile.ZipFile(archive).extractall(archive.parent)
+    return archive.with_suffix("") / "report.html"
 
 
 VIEW3D_BACKGROUND = (205, 208, 218)
