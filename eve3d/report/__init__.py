@@ -85,6 +85,11 @@ BEST_NOTE = ("<p><b>Bold</b>: the best value of each column among a scene's meth
              "scored on all of the protocol's scenes.</p>")
 
 
+def distance_shown(unit: str | None) -> tuple[str, str, float]:
+    """:data:`DISTANCE_SHOWN` of ``unit``: a unit it does not list is shown as it is."""
+    return DISTANCE_SHOWN.get(unit, (unit or "", unit or "", 1.0))
+
+
 def _shown(column: str, value, unit: str | None) -> str:
     """``value`` as the report prints it: 3 significant digits for distances, 3 decimals for
     fractions, 2 for percent and dB, 1 for seconds; text as it is."""
@@ -94,7 +99,7 @@ def _shown(column: str, value, unit: str | None) -> str:
     if spec.kind == "count":
         return f"{number:.0f}"
     if spec.kind == "distance":
-        number *= DISTANCE_SHOWN.get(unit, (unit, unit, 1.0))[2]
+        number *= distance_shown(unit)[2]
         return f"{number:.3g}" if abs(number) < 1000 else f"{number:.0f}"
     if spec.kind == "percent":
         return f"{100 * number:.2f}"
@@ -105,7 +110,7 @@ def _header(column: str, unit: str | None) -> str:
     spec = SHOWN.get(column)
     if spec is None:
         return column
-    shown = {"distance": DISTANCE_SHOWN.get(unit, (unit, unit, 1.0))[0], "percent": "%", "dB": "dB", "s": "s"}.get(spec.kind)
+    shown = {"distance": distance_shown(unit)[0], "percent": "%", "dB": "dB", "s": "s"}.get(spec.kind)
     return f"{spec.label} ({shown})" if shown else spec.label
 
 
@@ -124,8 +129,8 @@ def _best_cells(rows: list[Mapping], columns: list[str], unit: str | None, conte
         spec = SHOWN.get(column)
         if spec is None or spec.best is None:
             continue
-        entrants = [(i, float(_shown(column, r.get(column), unit))) for i, r in enumerate(rows)
-                    if contest(r) and _shown(column, r.get(column), unit) not in ("", "nan")]
+        shown = {i: _shown(column, r.get(column), unit) for i, r in enumerate(rows) if contest(r)}
+        entrants = [(i, float(text)) for i, text in shown.items() if text not in ("", "nan")]
         if len(entrants) < 2:
             continue
         key = {"low": lambda v: v, "high": lambda v: -v, "zero": abs}[spec.best]
@@ -177,7 +182,7 @@ def protocol_tables(protocol: str, rows: list[dict], published: list[dict]) -> s
     mean_best = _best_cells(mean_rows, list(SHOWN), unit, lambda r: r["scenes"] == full and _ranked(r["method"]))
     mean_rows += [r for r in published if any(m in r for m in columns)]
     mean_columns = ["source", "method", "scenes"] + [c for c in _present(SHOWN, mean_rows) if c in columns]
-    shown_unit = f" (distances in {DISTANCE_SHOWN.get(unit, (unit, unit, 1.0))[1]})" if unit else ""
+    shown_unit = f" (distances in {distance_shown(unit)[1]})" if unit else ""
     return (f"<h3>{html.escape(protocol)} protocol{html.escape(shown_unit)}</h3>"
             f"{_table('summary', f'summary-{protocol}', columns, rows, unit, best)}"
             f"<h4>Means</h4>{_table('means', f'means-{protocol}', mean_columns, mean_rows, unit, mean_best)}")
@@ -226,7 +231,7 @@ def bar_chart(rows: list[dict], metric: str, out: Path) -> bool:
     if not have:
         return False
     unit = have[0].get("unit") or None
-    scale = DISTANCE_SHOWN.get(unit, (unit, unit, 1.0))[2] if SHOWN[metric].kind == "distance" else 1.0
+    scale = distance_shown(unit)[2] if SHOWN[metric].kind == "distance" else 1.0
     scenes = sorted({r["scene"] for r in have})
     methods = sorted({r["method"] for r in have})
     width = 0.8 / len(methods)
@@ -411,7 +416,7 @@ def write_report(layout: Layout, out: Path, datasets: Mapping[str, Path], backen
                     scene_sheet(panels, f"{scene} · {method}", path)
                     written.append(path)
         unit = next((r.get("unit") for r in rows if r["scene"] == scene and r.get("unit")), None)
-        label, _, factor = DISTANCE_SHOWN.get(unit, (unit or "", "", 1.0))
+        label, _, factor = distance_shown(unit)
         with phase("3D views"):
             if scene_view(layout, scene, methods, (label, factor), gt, cameras, out / "scenes3d" / f"{scene}.html"):
                 written.append(out / "scenes3d" / f"{scene}.html")

@@ -77,8 +77,12 @@ def reduced_surface(path: Path, triangles: int = MESH_TRIANGLES, points: int = G
         mesh.remove_unreferenced_vertices()
         return Reduced(np.asarray(mesh.vertices, np.float32), np.asarray(mesh.triangles, np.int32), original)
     cloud = np.asarray(o3d.io.read_point_cloud(str(path)).points, np.float32)
-    keep = np.sort(np.random.default_rng(0).permutation(len(cloud))[:points])
-    return Reduced(cloud[keep], None, len(cloud))
+    return Reduced(cloud[uniform_subset(len(cloud), points)], None, len(cloud))
+
+
+def uniform_subset(n: int, count: int) -> np.ndarray:
+    """Indices of ``count`` of ``n`` items at most, drawn uniformly (the same every time), in order."""
+    return np.sort(np.random.default_rng(0).permutation(n)[:count])
 
 
 def error_points(path: Path, count: int = ERROR_POINTS) -> tuple[Reduced, np.ndarray]:
@@ -88,7 +92,7 @@ def error_points(path: Path, count: int = ERROR_POINTS) -> tuple[Reduced, np.nda
 
     cloud = o3d.io.read_point_cloud(str(path))
     points, colours = np.asarray(cloud.points, np.float32), np.asarray(cloud.colors)
-    keep = np.sort(np.random.default_rng(0).permutation(len(points))[:count])
+    keep = uniform_subset(len(points), count)
     return Reduced(points[keep], None, len(points)), hot_r_fraction(colours[keep]).astype(np.float32)
 
 
@@ -164,7 +168,7 @@ def scene_figure(scene: str, meshes: Mapping[str, Path], errors: Mapping[str, tu
         if who is not None and who != (methods[0] if methods else None):
             trace.visible = "legendonly"
     buttons = [{"label": method, "method": "restyle",
-                "args": [{"visible": [_shown(t, who, method) for t, who in zip(traces, owner)]}]}
+                "args": [{"visible": [_visible_on_button(t, who, method) for t, who in zip(traces, owner)]}]}
                for method in methods]
     fig = go.Figure(traces)
     fig.update_layout(
@@ -195,7 +199,7 @@ def first_view(cameras: Sequence[Camera]) -> dict:
     return {"eye": dict(zip("xyz", map(float, -1.2 * look))), "up": dict(zip("xyz", map(float, up)))}
 
 
-def _shown(trace, who: str | None, method: str):
+def _visible_on_button(trace, who: str | None, method: str):
     """A trace's visibility when ``method``'s button is pressed: its mesh shown, its error
     points in the legend (one click away), the other methods in the legend; the GT and
     cameras as they were."""
