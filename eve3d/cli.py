@@ -9,7 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from eve3d.core import timing
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 
 
 def _config(a: argparse.Namespace) -> dict:

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.core.settings_fields import deep_merge
 
 REPO = Path(__file__).resolve().parent.parent

@@ -27,9 +27,10 @@ from eve3d.core.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, R
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.losses import (CameraStack, depth_confirmation, depth_normal_loss, depth_to_normal, depth_to_points,
                           forward_backward_error, geometric_loss, ncc_loss, project_points, rgb_loss)
+from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import save_maps
 from eve3d.core.methods import uses_priors
-from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.scene import Scene
 from eve3d.core.settings import JointSettings, RenderSettings
 from eve3d.core.timing import phase
 from eve3d.gaussians.neighbours import select_neighbours

@@ -16,10 +16,11 @@ from tqdm import tqdm
 
 from eve3d.core import chunking
 from eve3d.core.chunking import chunks
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_path
 from eve3d.core.maps import load_maps, map_camera
 from eve3d.core.photos import read_view
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import MeshSettings
 from eve3d.core.timing import phase
 

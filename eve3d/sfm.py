@@ -13,11 +13,11 @@ import json
 import shutil
 from pathlib import Path
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_dir
 from eve3d.core.io.colmap import find_colmap_model, import_pycolmap, match_features
 from eve3d.core.io.loader import METADATA
 from eve3d.core.photos import import_photos, scan_photos, write_pyramid
-from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import SfmSettings
 from eve3d.core.timing import phase
 

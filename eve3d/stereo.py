@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_dir, read_image, write_image
 from eve3d.core.layout import TONE_FILE  # written by the pretrain beside its PLY; read here
 from eve3d.core.maps import save_maps
 from eve3d.core.photos import read_view
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import PRIOR_BACKENDS, BaselineSettings, MatchCheck, RenderSettings, StereoSettings
 from eve3d.core.settings_fields import pick
 from eve3d.core.timing import phase

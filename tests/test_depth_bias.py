@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 import torch
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import save_maps
-from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import SgbmSettings
 from eve3d.evaluate.depth import depth_accuracy
 from eve3d.priors.sgbm import sgbm_disparity

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import torch
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps, save_maps
 from eve3d.core.methods import methods
-from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.scene import Camera
 from eve3d.core.settings import JointSettings
 from eve3d.gaussians.losses import CameraStack, forward_backward_error
 from eve3d.gaussians.render.projection import CameraTensors

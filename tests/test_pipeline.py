@@ -127,8 +127,8 @@ def test_fusion_past_what_open3d_extracts_is_refused_before_fusing(tiny_dataset,
     handles (it crashes past 262,144 blocks), the fusion stops with an error that names
     the remedy, before any view is fused."""
     from eve3d import mesh as meshing
+    from eve3d.core.errors import Eve3dError
     from eve3d.core.io import load_scene
-    from eve3d.core.scene import Eve3dError
     from eve3d.core.settings import MeshSettings
     from eve3d.priors.oracle import priors_from_mesh
 

@@ -4,8 +4,9 @@ import json
 import numpy as np
 import pytest
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps, preview_image
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import BaselineSettings, MatchCheck
 from tests.helpers import dim, sgbm_priors, shifted_pair, stereo_scene
 from eve3d.core.photos import equalizing_curve

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 
 
 def _expected(path: Path, what: str, root: Path, named: bool = False) -> Eve3dError:

@@ -9,8 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_path, write_image
-from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.scene import Camera
 
 
 def save_maps(path: Path, preview: bool = True, **maps: np.ndarray) -> None:

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.core.settings_fields import deep_merge
 
 

@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import IMAGE_SUFFIXES, read_image, write_image
 from eve3d.core.maps import same_aspect
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 
 PYRAMID_LEVELS = (2, 4, 8)
 """Downscale factors of the cached image pyramid (folders ``images_{k}``)."""

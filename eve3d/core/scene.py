@@ -14,10 +14,6 @@ import numpy as np
 SceneKind = Literal["object", "scene"]
 
 
-class Eve3dError(Exception):
-    """A problem with the user's input or configuration; the CLI prints it and exits 2."""
-
-
 @dataclass
 class Camera:
     """One posed pinhole view."""

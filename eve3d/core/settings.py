@@ -12,7 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.errors import Eve3dError
+from eve3d.core.scene import Camera
 from eve3d.core.settings_fields import Checked, setting
 
 RENDER_BACKENDS = ("auto", "cpu", "torch", "gsplat")

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 
 
 def setting(default: Any = None, *, factory: Any = None, ge: float | None = None, gt: float | None = None,

@@ -19,7 +19,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.errors import Eve3dError
+from eve3d.core.scene import Scene
 from eve3d.core.settings import EvalSettings
 from eve3d.core.settings_fields import flag
 from eve3d.core.timing import phase

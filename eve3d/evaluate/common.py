@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from eve3d.core.chunking import chunks
 from eve3d.core.colormap import hot_r
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 
 
 def nearest_distances(query: np.ndarray, reference: np.ndarray, upper_bound: float = np.inf,

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import depth_at, load_maps, map_camera, same_aspect
-from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import MeshSettings, StereoSettings
 
 

@@ -16,8 +16,9 @@ from scipy.spatial import cKDTree
 
 from eve3d.core import chunking
 from eve3d.core.chunking import chunks
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 from eve3d.evaluate import EvalInputs
 from eve3d.evaluate.common import nearest_distances, write_error_maps
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import json
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.layout import HELD_OUT_DIR, TRAIN_METRICS_FILE
-from eve3d.core.scene import Eve3dError
 from eve3d.evaluate import PROTOCOLS, EvalInputs
 
 RENDER_KEYS = ("resolution", "max_side", "background", "antialiased", "backend", "device")

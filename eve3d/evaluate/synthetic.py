@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
 from eve3d.core.raycast import MeshRaycaster, seen_counts
-from eve3d.core.scene import Eve3dError
 from eve3d.core.surface import sample_surface
 from eve3d.evaluate import GIVEN_TAU, EvalInputs
 from eve3d.evaluate.common import COLOUR_RANGE, distance_metrics, mesh_distances, write_error_maps

@@ -26,8 +26,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
-from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.scene import Scene
 from eve3d.evaluate import GIVEN_TAU, EvalInputs
 from eve3d.evaluate.common import COLOUR_RANGE, fscore, nearest_distances, write_error_maps
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_path
-from eve3d.core.scene import Eve3dError
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199

@@ -25,7 +25,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.errors import Eve3dError
+from eve3d.core.scene import Scene
 from eve3d.core.settings import TrainSettings
 from eve3d.core.timing import phase
 from eve3d.gaussians.losses import psnr, rgb_loss

@@ -14,8 +14,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.photos import read_view
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import RenderSettings
 from eve3d.gaussians.render.projection import CameraTensors
 

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.photos import warn
-from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import HitnetSettings, StereoSettings
 from eve3d.priors.matching import left_right_consistent, mirrored, onnx_session
 

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps, preview_image, same_aspect
-from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.scene import Camera
 
 
 @dataclass

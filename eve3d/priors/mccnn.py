@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.core.settings import MccnnSettings, StereoSettings
 from eve3d.priors.matching import left_right_consistent, local_std
 

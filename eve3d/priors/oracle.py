@@ -7,10 +7,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_dir
 from eve3d.core.maps import save_maps
 from eve3d.core.raycast import MeshRaycaster
-from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.scene import Scene
 
 
 def priors_from_mesh(scene: Scene, out_dir: Path, mesh: Path | None = None, preview: bool = True) -> None:

@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 
 TRAINED_MAXDISP = 192
 WEIGHTS_FILE = "pretrained_model_KITTI2015.tar"

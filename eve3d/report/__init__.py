@@ -429,8 +429,8 @@ def run_summary(metrics: list[Path], *, out: Path, failed: Path | None = None) -
     ``failed`` holds the rows of jobs that failed (``eve3d.core.failures``)."""
     import json
 
+    from eve3d.core.errors import Eve3dError
     from eve3d.core.layout import EVALUATION, METRICS_FILE, RECORD, TRAIN_METRICS_FILE, TRAINING, VIEW_COLUMNS, locate
-    from eve3d.core.scene import Eve3dError
 
     rows, view_rows = [], []
     for path in map(Path, metrics):
@@ -483,7 +483,7 @@ def run_show(*, summary: Path) -> None:
     """``eve3d summary --show``: the tables of a written ``summary.csv`` (and the views' beside
     it), as the summary printed them, without gathering anything (``make demo`` prints its
     table last this way)."""
-    from eve3d.core.scene import Eve3dError
+    from eve3d.core.errors import Eve3dError
 
     def typed(row: dict) -> dict:  # numbers as numbers, empty cells absent: as the records were
         return {k: (_number(v) if _number(v) is not None else v) for k, v in row.items() if v not in (None, "")}

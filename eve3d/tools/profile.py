@@ -14,7 +14,7 @@ from datetime import datetime
 from pathlib import Path
 
 from eve3d.core import timing
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 
 _STAMP = re.compile(r"^\[(\w{3} \w{3} +\d+ \d\d:\d\d:\d\d \d{4})\]$")
 _RULE = re.compile(r"^(?:local)?rule (\w+):$", re.MULTILINE)

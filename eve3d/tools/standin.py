@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.errors import Eve3dError
+from eve3d.core.scene import Scene
 
 
 def write_dtu_layout(scene: Scene, root: Path, scale_mat: np.ndarray, images: str = "image") -> None:

@@ -1,8 +1,8 @@
 """The method registry: variants are config, and the workflow and the CLI read the names."""
 import pytest
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.methods import REGISTRY, methods
-from eve3d.core.scene import Eve3dError
 from eve3d.joint import train_joint
 from tests.helpers import joint_settings, snakemake, write_config
 

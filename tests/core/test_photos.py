@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_image
 from eve3d.core.io import load_scene
 from eve3d.core.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, PRETRAIN, Layout
 from eve3d.core.photos import read_upright, read_view, scan_photos
-from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import RenderSettings
 from eve3d.synth import generate
 from tests.helpers import run_cli, snakemake, write_config

@@ -5,10 +5,11 @@ import numpy as np
 import scipy
 import pytest
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
 from eve3d.core.io import load_scene
 from eve3d.core.raycast import MeshRaycaster, seen_counts
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import EvalSettings
 from eve3d.evaluate import PROTOCOLS, EvalInputs
 from eve3d.evaluate.common import distance_metrics, hot_r, mesh_distances

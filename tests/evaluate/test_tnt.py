@@ -4,10 +4,11 @@ on a synthetic T&T layout with known frames, and its input errors."""
 import numpy as np
 import pytest
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import write_image
 from eve3d.core.io import load_scene
 from eve3d.core.io.colmap import write_colmap
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import EvalSettings
 from eve3d.core.surface import sample_surface
 from eve3d.evaluate import EvalInputs

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.gaussians.model import SH_C0, GaussianModel, eval_sh, sh_coefficients
 
 

@@ -11,7 +11,8 @@ from eve3d.gaussians.model import GaussianModel
 from eve3d.joint import train_joint
 from eve3d.gaussians.losses import (CameraStack, depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss,
                           ssim)
-from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.errors import Eve3dError
+from eve3d.core.scene import Camera
 from eve3d.core.settings import DensifySettings, JointSettings, TrainSettings
 from eve3d.core.settings_fields import from_mapping
 from eve3d.gaussians.render.projection import CameraTensors

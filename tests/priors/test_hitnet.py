@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.core.settings import HitnetSettings
 from eve3d.priors.hitnet import HitnetStereo
 from tests.helpers import hitnet_model, plane_pair

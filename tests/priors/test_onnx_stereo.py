@@ -4,8 +4,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps
-from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import OnnxSpec
 from eve3d.priors.onnx import OnnxStereo
 from eve3d.stereo import stereo_priors

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.tools.profile import between_jobs, format_profile, latest_log, phase_totals, read_run
 from tests.helpers import run_cli
 

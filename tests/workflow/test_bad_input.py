@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from eve3d.config import resolve_config
+from eve3d.core.errors import Eve3dError
 from eve3d.core.io.colmap import import_pycolmap
-from eve3d.core.scene import Eve3dError
 from tests.helpers import run_cli
 
 EARLIER = b"an earlier run's artefact"

@@ -10,9 +10,9 @@ import pytest
 import yaml
 
 from eve3d.config import REPO, resolve_config
+from eve3d.core.errors import Eve3dError
 from eve3d.core.io import load_scene
 from eve3d.core.layout import EVALUATION, RECORD, TRAINING, Layout
-from eve3d.core.scene import Eve3dError
 from eve3d.synth import generate
 from eve3d.tools.standin import STANDIN_SCENE, write_log, write_standin
 from tests.helpers import TINY_START, folder_report, open_report, run_cli, snakemake

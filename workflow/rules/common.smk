@@ -10,9 +10,9 @@ REPO = str(Path(workflow.basedir).parent)  # workflow/Snakefile: the checkout wh
 sys.path.insert(0, REPO)
 from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_protocol, scene_sections, scene_value,
                           stage_settings)
+from eve3d.core.errors import Eve3dError
 from eve3d.core.io.loader import has_poses
 from eve3d.core.layout import PRETRAIN, Layout
-from eve3d.core.scene import Eve3dError
 from eve3d.core.settings import PRIOR_BACKENDS, PretrainSettings, RenderSettings
 from eve3d.core.settings_fields import flag, pick
 

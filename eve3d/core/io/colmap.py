@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.errors import Eve3dError
+from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import SfmSettings
 
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")

@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import check_image, list_images
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 
 
 def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -4,10 +4,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.io.colmap import find_colmap_model, read_colmap
 from eve3d.core.io.dtu import read_dtu
 from eve3d.core.io.tnt import read_tnt, tnt_name
-from eve3d.core.scene import Eve3dError, Scene
+from eve3d.core.scene import Scene
 
 METADATA = "eve3d_scene.json"
 """Optional file beside a dataset (written by ``eve3d synth``): kind, GT mesh, object radius."""

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.io.colmap import read_colmap
-from eve3d.core.scene import Eve3dError
 
 
 def read_log_trajectory(path: Path) -> list[np.ndarray]:

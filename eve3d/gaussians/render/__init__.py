@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from eve3d.core.scene import Camera, Eve3dError
+from eve3d.core.errors import Eve3dError
+from eve3d.core.scene import Camera
 from eve3d.core.settings import RENDER_BACKENDS, RenderSettings
 from eve3d.gaussians.render.projection import CameraTensors, Projected, camera_planes, project_gaussians
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.gaussians.render.projection import CameraTensors, Projected
 
 SOURCES = [Path(__file__).parent / "csrc" / name

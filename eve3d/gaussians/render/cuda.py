@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import torch
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.gaussians.render.projection import EPS2D, CameraTensors
 
 

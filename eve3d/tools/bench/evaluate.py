@@ -89,7 +89,7 @@ def run(meshes: list[str] = (), scene: str | None = None, gt: str | None = None,
     import json
     from pathlib import Path
 
-    from eve3d.core.scene import Eve3dError
+    from eve3d.core.errors import Eve3dError
 
     if meshes and not (scene and gt):
         raise Eve3dError("--meshes needs --scene (the cameras) and --gt (the GT mesh)")

@@ -151,8 +151,8 @@ def run_workflow(config_file: str, cores: int = 2, report_only: bool = False) ->
     import sys
 
     from eve3d.config import SNAKEFILE, load_config
+    from eve3d.core.errors import Eve3dError
     from eve3d.core.layout import Layout
-    from eve3d.core.scene import Eve3dError
 
     config = load_config(config_file)
     if not report_only:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.evaluate.depth import WEAK_TEXTURE
 
 

@@ -13,7 +13,7 @@ from unittest import mock
 
 import numpy as np
 
-from eve3d.core.scene import Eve3dError
+from eve3d.core.errors import Eve3dError
 from eve3d.tools.bench.common import in_child, peak_rss_mb
 
 if TYPE_CHECKING:
