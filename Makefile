@@ -51,7 +51,7 @@ install: $(STAMP)
 # and installed first, because a loose torch requirement on a machine without it pulls a
 # multi-GB CUDA build. The logger plugin (workflow/logger) is installed as a package: Snakemake
 # does not find plugins installed editable.
-$(STAMP): pyproject.toml workflow/logger/pyproject.toml workflow/logger/snakemake_logger_plugin_eve3d/__init__.py
+$(STAMP): pyproject.toml workflow/logger/pyproject.toml $(wildcard workflow/logger/snakemake_logger_plugin_eve3d/*.py)
 	@SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	{ ldconfig -p | grep -q libusb-1.0 && [ -x /usr/lib/chromium/chromium-headless-shell ] && \
 	  command -v slurmd >/dev/null && command -v munged >/dev/null; } || $$SUDO apt-get update -qq; \

@@ -404,7 +404,7 @@ def test_progress_shows_job_starts_ends_and_the_training_bar(tmp_path):
 
     from snakemake_interface_logger_plugins.common import LogEvent
 
-    from eve3d.core.progress import ProgressHandler, latest_progress
+    from snakemake_logger_plugin_eve3d.progress import ProgressHandler, latest_progress
 
     log = tmp_path / "joint_eve3d.log"
     log.write_text("eve3d: loading images\neve3d:  10%|#         | 10/100 [00:01<00:09, 9.9it/s, loss=0.2, psnr=12.00]"

@@ -1,4 +1,4 @@
-"""Snakemake logger plugin ``eve3d``: registers :class:`eve3d.core.progress.ProgressHandler`."""
+"""Snakemake logger plugin ``eve3d``: registers :class:`.progress.ProgressHandler`."""
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -18,7 +18,7 @@ class LogHandler(LogHandlerBase):
 
         from snakemake.logging import DefaultFormatter
 
-        from eve3d.core.progress import ProgressHandler  # imported here: Snakemake imports every plugin at start
+        from snakemake_logger_plugin_eve3d.progress import ProgressHandler  # imported here: Snakemake imports every plugin at start
 
         formatter = DefaultFormatter(self.common_settings.quiet, self.common_settings.show_failed_logs)
         self.progress = ProgressHandler(sys.stdout if self.common_settings.stdout else sys.stderr,

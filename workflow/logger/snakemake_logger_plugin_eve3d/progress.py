@@ -1,6 +1,6 @@
 """What the terminal shows while the workflow runs: Snakemake's logger plugin ``eve3d``
-(``snakemake --logger eve3d``; the package ``snakemake-logger-plugin-eve3d`` in
-``workflow/logger`` registers this handler).
+(``snakemake --logger eve3d``; this package, ``snakemake-logger-plugin-eve3d``, registers
+this handler in its ``__init__``).
 
 One line when a job starts and one when it ends, with its stage, scene, method and wall
 time; while a job runs, the latest progress line of its log file (the training bars carry
