@@ -343,8 +343,14 @@ def _add_data_parsers(sub) -> None:
 
 
 def _add_stereo_parsers(sub) -> None:
-    from eve3d.core.settings import (PRIOR_BACKENDS, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings,
-                                     StereoSettings)
+    from eve3d.core.settings import (
+        PRIOR_BACKENDS,
+        BaselineSettings,
+        MatchCheck,
+        RenderSettings,
+        SgbmSettings,
+        StereoSettings,
+    )
 
     s = _stage(sub, "stereo-render", _cmd_stereo_render,
                "right views of virtual stereo pairs, rendered by the pretrained model",
@@ -393,11 +399,11 @@ def _add_training_parsers(sub) -> None:
 
 
 def _add_mesh_parsers(sub) -> None:
-    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS, WITHOUT_GT
     from typing import get_args
 
     from eve3d.core.scene import SceneKind
     from eve3d.core.settings import EvalSettings, MeshSettings
+    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS, WITHOUT_GT
 
     s = _stage(sub, "mesh", _cmd_mesh, "TSDF-fuse per-view depth maps into mesh.ply", (MeshSettings, "mesh"))
     s.add_argument("--scene", required=True)

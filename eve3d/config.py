@@ -85,7 +85,6 @@ def with_section_defaults(config: dict, source: str = "config") -> dict:
     import dataclasses
 
     from eve3d.core.settings import SECTIONS, EvalSettings, SyntheticSettings
-
     from eve3d.core.settings_fields import from_mapping
 
     try:

@@ -22,17 +22,18 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_dir, atomic_path, write_image
 from eve3d.core.layout import DEPTH_DIR, MODEL_FILE, PREVIEWS_DIR, PRIORS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
-from eve3d.gaussians.model import GaussianModel
-from eve3d.gaussians.losses import (CameraStack, depth_confirmation, depth_normal_loss, depth_to_normal, depth_to_points,
-                          forward_backward_error, geometric_loss, ncc_loss, project_points, rgb_loss)
-from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import save_maps
 from eve3d.core.methods import uses_priors
 from eve3d.core.scene import Scene
 from eve3d.core.settings import JointSettings, RenderSettings
 from eve3d.core.timing import phase
+from eve3d.gaussians.geometry import CameraStack, depth_to_normal, depth_to_points
+from eve3d.gaussians.losses import (depth_confirmation, depth_normal_loss, forward_backward_error, geometric_loss,
+                                    ncc_loss, rgb_loss)
+from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.neighbours import select_neighbours
 from eve3d.gaussians.render import RenderOutput, render_model
 from eve3d.gaussians.render.projection import CameraTensors
@@ -142,7 +143,7 @@ def on_prior_surface(model: GaussianModel, view: View, priors: PriorState, margi
     """(N,) bool: the Gaussians whose centre projects into ``view`` onto a pixel where the
     prior is confident and lies within ``margin`` × its depth of the centre's depth."""
     cam = view.cam
-    uv, z = project_points(model.params["means"] @ cam.R.T + cam.t, cam)
+    uv, z = (x[0] for x in CameraStack([cam]).project((model.params["means"] @ cam.R.T + cam.t)[None]))
     u, v = torch.floor(uv).long().unbind(-1)
     inside = (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
     u, v = u.clamp(0, cam.width - 1), v.clamp(0, cam.height - 1)

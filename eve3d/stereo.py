@@ -208,7 +208,7 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
     to its own size)."""
     import torch
 
-    from eve3d.gaussians.losses import depth_to_normal
+    from eve3d.gaussians.geometry import depth_to_normal
     from eve3d.gaussians.render.projection import CameraTensors
 
     pairs_path = stereo_dir / PAIRS_FILE

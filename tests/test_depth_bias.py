@@ -11,7 +11,6 @@ from eve3d.priors.sgbm import sgbm_disparity
 from tests.helpers import plane_pair
 
 
-
 def test_depth_accuracy_signs_the_error(tmp_path):
     """Too near is negative (and its absolute value positive); the median ignores a minority
     of gross errors; unconfident pixels and pixels without exact depth are left out."""
@@ -111,10 +110,9 @@ def test_sgbm_mode_out_of_range_is_named():
 @pytest.fixture(scope="module")
 def plane_dataset(tmp_path_factory):
     """The ``plane`` kind, small: 12 views at 160×120 (exact poses, GT mesh)."""
-    from eve3d.synth import generate
-
     from eve3d.core.io import load_scene
     from eve3d.priors.oracle import priors_from_mesh
+    from eve3d.synth import generate
 
     dataset = generate("plane", tmp_path_factory.mktemp("plane") / "plane", views=12, width=160, height=120)
     priors_from_mesh(load_scene(dataset), dataset.parent / "exact", preview=False)  # its exact depth, once

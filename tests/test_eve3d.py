@@ -12,7 +12,8 @@ from eve3d.core.maps import load_maps, save_maps
 from eve3d.core.methods import methods
 from eve3d.core.scene import Camera
 from eve3d.core.settings import JointSettings
-from eve3d.gaussians.losses import CameraStack, forward_backward_error
+from eve3d.gaussians.geometry import CameraStack
+from eve3d.gaussians.losses import forward_backward_error
 from eve3d.gaussians.render.projection import CameraTensors
 from eve3d.gaussians.train_state import Checkpoint
 from eve3d.gaussians.training import Trainer
@@ -21,7 +22,6 @@ from eve3d.joint import multiview_terms, prior_plane, setup_joint, train_joint
 from eve3d.priors.learnable import resample_prior
 from eve3d.priors.oracle import priors_from_mesh
 from tests.helpers import joint_settings, run_cli
-
 
 # -- the LBA's geometry ----------------------------------------------------------------------
 
@@ -289,8 +289,9 @@ def test_checkpoint_from_other_priors_is_not_resumed(tiny_scene, tmp_path, noisy
 
 
 def test_eve3d_starts_from_points_on_the_prior_surface(tiny_scene, tmp_path, noisy_priors):
-    from eve3d.core.raycast import MeshRaycaster  # noqa: F401 (the GT mesh is read by open3d)
     import open3d as o3d
+
+    from eve3d.core.raycast import MeshRaycaster  # noqa: F401 (the GT mesh is read by open3d)
 
     run = setup_joint(tiny_scene, tmp_path, _eve3d(init_prior_points=2000), noisy_priors)
     means = run.trainer.model.params["means"].detach().numpy()

@@ -6,13 +6,13 @@ import pytest
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps, preview_image
+from eve3d.core.photos import equalizing_curve
 from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import BaselineSettings, MatchCheck
-from tests.helpers import dim, sgbm_priors, shifted_pair, stereo_scene
-from eve3d.core.photos import equalizing_curve
 from eve3d.priors.matching import local_std
 from eve3d.priors.sgbm import sgbm_disparity
 from eve3d.stereo import PAIRS_FILE, checked_confidence, render_right_views, right_camera
+from tests.helpers import dim, sgbm_priors, shifted_pair, stereo_scene
 
 
 def test_right_camera_gives_disparity_fx_b_over_z():

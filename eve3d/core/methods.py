@@ -23,7 +23,6 @@ from typing import Any
 from eve3d.core.errors import Eve3dError
 from eve3d.core.settings_fields import deep_merge
 
-
 GAUSSIAN_DEVICE = "gpu"
 """What a cluster job that trains or renders Gaussians asks for (gsplat on CUDA); the CPU
 rasteriser runs anywhere, so a job given no GPU still runs."""

@@ -15,7 +15,6 @@ from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import depth_at, load_maps, map_camera, same_aspect
 from eve3d.core.settings import MeshSettings, StereoSettings
 
-
 WEAK_TEXTURE = 2.0
 """Grey levels (0–255): a pixel whose photo varies less than this (standard deviation over the
 matcher's window, ``stereo.block_size``) is *weakly textured*, where a photometric matcher has

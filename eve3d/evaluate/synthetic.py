@@ -30,7 +30,6 @@ from eve3d.core.surface import sample_surface
 from eve3d.evaluate import GIVEN_TAU, EvalInputs
 from eve3d.evaluate.common import COLOUR_RANGE, distance_metrics, mesh_distances, write_error_maps
 
-
 MAX_DRAWS = 8
 """Batches of ``evaluate.samples`` drawn at most per surface while too few samples are kept."""
 

@@ -1,4 +1,5 @@
-"""Image and geometry losses of 3DGS and PGSR, in PyTorch (images are (H, W, C) tensors).
+"""Image and multi-view losses of 3DGS and PGSR, in PyTorch (images are (H, W, C) tensors); the
+camera geometry they use is :mod:`eve3d.gaussians.geometry`.
 
 Conventions: camera space is OpenCV (x right, y down, z forward); rendered normals face
 the camera; a pixel (u, v) has its centre at (u + 0.5, v + 0.5).
@@ -11,6 +12,9 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 
+from eve3d.gaussians.geometry import (CameraStack, depth_to_normal, depth_to_points, plane_homographies, relative_poses,
+                                      sample_maps)
+from eve3d.gaussians.render import cpu
 from eve3d.gaussians.render.projection import CameraTensors
 
 
@@ -30,7 +34,7 @@ def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5,
     tensors, ``a`` needing a gradient and ``b`` none (the training image), and an extension
     that builds; else with the PyTorch operations below (the reference)."""
     if fused is None:
-        fused = a.requires_grad and not b.requires_grad and _fused_here(a, [])
+        fused = a.requires_grad and not b.requires_grad and cpu.fused_here(a)
     if fused:
         if b.requires_grad:
             raise ValueError("ssim(fused=True) differentiates the first image only; b needs a gradient here")
@@ -52,8 +56,6 @@ def ssim(a: torch.Tensor, b: torch.Tensor, window: int = 11, sigma: float = 1.5,
 class _FusedSsim(torch.autograd.Function):
     @staticmethod
     def forward(ctx, a, b, window, sigma):
-        from eve3d.gaussians.render import cpu
-
         value, derivs = cpu.extension().ssim_forward(a.detach(), b.detach(), window, sigma)
         ctx.save_for_backward(a, b, derivs)
         ctx.window = window, sigma
@@ -61,8 +63,6 @@ class _FusedSsim(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad):
-        from eve3d.gaussians.render import cpu
-
         a, b, derivs = ctx.saved_tensors
         return cpu.extension().ssim_backward(a.detach(), b.detach(), derivs, *ctx.window, float(grad)), None, None, None
 
@@ -75,48 +75,6 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
 def rgb_loss(pred: torch.Tensor, gt: torch.Tensor, ssim_weight: float = 0.2) -> torch.Tensor:
     """L_rgb = (1 − λ)·L1 + λ·(1 − SSIM)."""
     return (1 - ssim_weight) * (pred - gt).abs().mean() + ssim_weight * (1 - ssim(pred, gt))
-
-
-def depth_to_points(depth: torch.Tensor, cam: CameraTensors) -> torch.Tensor:
-    """(H, W) camera z → (H, W, 3) camera-space points."""
-    return cam.rays() * depth[..., None]
-
-
-def depth_to_normal(depth: torch.Tensor, cam: CameraTensors, span: int = 1, fused: bool | None = None
-                    ) -> torch.Tensor:
-    """(H, W, 3) unit normals facing the camera from central differences of the
-    back-projected depth over ±``span`` pixels (a wider span averages out depth noise);
-    zero on the ``span``-pixel border.
-
-    ``fused``: in one pass of the C++ extension (``csrc/losses.cpp``, an analytic backward
-    for the depth), which by default it is in training (a CPU depth that needs a gradient,
-    an extension that builds: stages that never render do not build it for this); else the
-    PyTorch operations below (the reference)."""
-    if depth.requires_grad and _fused_here(depth, []) if fused is None else fused:
-        return _DepthNormal.apply(depth, cam.rays(), span)
-    p = depth_to_points(depth, cam)
-    k = span
-    dx = p[k:-k, 2 * k:] - p[k:-k, :-2 * k]
-    dy = p[2 * k:, k:-k] - p[:-2 * k, k:-k]
-    n = F.normalize(torch.cross(dy, dx, dim=-1), dim=-1)  # y down × x right faces −z, the camera
-    return F.pad(n, (0, 0, k, k, k, k))  # (H, W, 3) in memory too: a reduction over the last axis is 20x faster
-
-
-class _DepthNormal(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, depth, rays, span):
-        from eve3d.gaussians.render import cpu
-
-        ctx.save_for_backward(depth, rays)
-        ctx.span = span
-        return cpu.extension().depth_normal_forward(depth.detach(), rays, span)
-
-    @staticmethod
-    def backward(ctx, grad):
-        from eve3d.gaussians.render import cpu
-
-        depth, rays = ctx.saved_tensors
-        return cpu.extension().depth_normal_backward(depth.detach(), rays, ctx.span, grad), None, None
 
 
 def edge_weight(image: torch.Tensor) -> torch.Tensor:
@@ -141,66 +99,6 @@ def depth_normal_loss(depth: torch.Tensor, normal: torch.Tensor, image: torch.Te
     return (err * mask).sum() / mask.sum().clamp_min(1)
 
 
-class CameraStack:
-    """K pinhole cameras as batched tensors, for the multi-view terms of one reference view
-    against K neighbours at once (a few large tensor operations instead of K times as many
-    small ones). Broadcasts against (K, ..., 2) pixel coordinates."""
-
-    def __init__(self, cams: Sequence[CameraTensors]):
-        opts = dict(dtype=cams[0].R.dtype, device=cams[0].R.device)
-        self.R = torch.stack([c.R for c in cams])  # (K, 3, 3)
-        self.t = torch.stack([c.t for c in cams])  # (K, 3)
-        self.focal = torch.tensor([[c.fx, c.fy] for c in cams], **opts)  # (K, 2)
-        self.centre = torch.tensor([[c.cx, c.cy] for c in cams], **opts)  # (K, 2)
-        self.size = torch.tensor([[c.width, c.height] for c in cams], **opts)  # (K, 2)
-
-    def __len__(self) -> int:
-        return len(self.R)
-
-    def per_camera(self, x: torch.Tensor, ndim: int) -> torch.Tensor:
-        """(K, C) → (K, 1, …, 1, C), to broadcast against (K, …, C) with ``ndim`` dims."""
-        return x.reshape(len(self), *([1] * (ndim - 2)), x.shape[-1])
-
-    def project(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(K, ..., 3) points in each camera's frame → pixel coordinates (K, ..., 2) and z."""
-        z = points[..., 2:]
-        zs = torch.where(z.abs() > 1e-8, z, torch.full_like(z, 1e-8))
-        n = points.dim()
-        return self.per_camera(self.focal, n) * points[..., :2] / zs + self.per_camera(self.centre, n), z[..., 0]
-
-    def rays_at(self, uv: torch.Tensor) -> torch.Tensor:
-        """(K, ..., 3) camera-space rays through pixel coordinates (K, ..., 2)."""
-        n = uv.dim()
-        xy = (uv - self.per_camera(self.centre, n)) / self.per_camera(self.focal, n)
-        return torch.cat([xy, torch.ones_like(xy[..., :1])], -1)
-
-    def inside(self, uv: torch.Tensor) -> torch.Tensor:
-        """(K, ...) whether pixel coordinates (K, ..., 2) fall inside each camera's image."""
-        return ((uv >= 0) & (uv < self.per_camera(self.size, uv.dim()))).all(-1)
-
-    def K(self) -> torch.Tensor:
-        """(K, 3, 3) intrinsic matrices."""
-        k = torch.zeros(len(self), 3, 3, dtype=self.R.dtype, device=self.R.device)
-        k[:, 0, 0], k[:, 1, 1] = self.focal[:, 0], self.focal[:, 1]
-        k[:, :2, 2], k[:, 2, 2] = self.centre, 1
-        return k
-
-
-def relative_poses(ref: CameraTensors, nbrs: CameraStack) -> tuple[torch.Tensor, torch.Tensor]:
-    """(R (K, 3, 3), t (K, 3)) taking reference-camera coordinates to each neighbour's."""
-    R = nbrs.R @ ref.R.T
-    return R, nbrs.t - R @ ref.t
-
-
-def _fused_here(image: torch.Tensor, maps: Sequence[torch.Tensor]) -> bool:
-    """Whether a loss runs in the C++ extension: CPU tensors, neighbours' maps of one size
-    (the multi-view terms stack them; the image losses pass none), and an extension that
-    builds here."""
-    from eve3d.gaussians.render import cpu
-
-    return image.device.type == "cpu" and all(m.shape == maps[0].shape for m in maps) and cpu.available()
-
-
 def _extension_cameras(ref: CameraTensors, nbrs: CameraStack, dtype: torch.dtype
                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, tuple[float, float, float, float]]:
     """The cameras as the extension takes them: relative poses R (K, 3, 3) and t (K, 3), the
@@ -208,20 +106,6 @@ def _extension_cameras(ref: CameraTensors, nbrs: CameraStack, dtype: torch.dtype
     R, t = relative_poses(ref, nbrs)
     intrinsics = torch.cat([nbrs.focal, nbrs.centre], 1)
     return R.to(dtype), t.to(dtype), intrinsics.to(dtype), (ref.fx, ref.fy, ref.cx, ref.cy)
-
-
-def _sample(maps: Sequence[torch.Tensor], uv: torch.Tensor) -> torch.Tensor:
-    """Bilinear lookup of K (H, W, C) ``maps`` at pixel coordinates ``uv`` (K, ..., 2), map
-    k at uv[k] (pixel centres at +0.5); the border value continues outside (callers mask
-    what falls outside). Returns (K, ..., C)."""
-    k, c = len(maps), maps[0].shape[2]
-    if any(m.shape != maps[0].shape for m in maps):  # sizes differ: one map at a time
-        return torch.cat([_sample([m], p[None]) for m, p in zip(maps, uv)])
-    h, w = maps[0].shape[:2]
-    grid = torch.stack([uv[..., 0] / w * 2 - 1, uv[..., 1] / h * 2 - 1], -1).reshape(k, -1, 1, 2)
-    images = torch.stack(list(maps)).permute(0, 3, 1, 2)
-    out = F.grid_sample(images, grid, align_corners=False, padding_mode="border")  # (K, C, L, 1)
-    return out[..., 0].transpose(1, 2).reshape(*uv.shape[:-1], c)
 
 
 def forward_backward_error(depth_ref: torch.Tensor, depth_nbrs: Sequence[torch.Tensor], ref: CameraTensors,
@@ -235,16 +119,16 @@ def forward_backward_error(depth_ref: torch.Tensor, depth_nbrs: Sequence[torch.T
     ``fused``: compute it in one pass of the C++ extension (``csrc/roundtrip.cpp``, an
     analytic backward), which by default it does on the CPU when the neighbours' maps share a
     size and the extension builds; else with the PyTorch operations below (the reference)."""
-    if _fused_here(depth_ref, depth_nbrs) if fused is None else fused:
+    if cpu.fused_here(depth_ref, depth_nbrs) if fused is None else fused:
         R, t, intrinsics, ref_intrinsics = _extension_cameras(ref, nbrs, depth_ref.dtype)
         return _RoundTrip.apply(depth_ref, torch.stack(list(depth_nbrs)), R, t, intrinsics, ref_intrinsics)
     R, t = relative_poses(ref, nbrs)
     p_ref = depth_to_points(depth_ref, ref)
     p_nbr = p_ref.reshape(1, -1, 3) @ R.transpose(1, 2) + t[:, None]  # (K, HW, 3)
     uv_n, z_n = nbrs.project(p_nbr)
-    d_n = _sample([d[..., None] for d in depth_nbrs], uv_n)[..., 0]
+    d_n = sample_maps([d[..., None] for d in depth_nbrs], uv_n)[..., 0]
     back = (nbrs.rays_at(uv_n) * d_n[..., None] - t[:, None]) @ R  # neighbour → reference: Rᵀ (x − t)
-    uv_r, z_r = project_points(back, ref)
+    uv_r, z_r = CameraStack([ref]).project(back)
     shape = (len(nbrs), *depth_ref.shape)
     phi = (uv_r - ref.pixel_centres().reshape(1, -1, 2)).norm(dim=-1).reshape(shape)
     defined = (depth_ref > 0).reshape(1, -1) & (z_n > 0) & (d_n > 0) & (z_r > 0) & nbrs.inside(uv_n)
@@ -257,8 +141,6 @@ class _RoundTrip(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, depth_ref, depth_nbrs, R, t, intrinsics, ref_intrinsics):
-        from eve3d.gaussians.render import cpu
-
         args = (R, t, intrinsics, *ref_intrinsics)
         phi, defined = cpu.extension().roundtrip_forward(depth_ref.detach(), depth_nbrs.detach(), *args)
         ctx.save_for_backward(depth_ref, depth_nbrs)
@@ -268,8 +150,6 @@ class _RoundTrip(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_phi, _):
-        from eve3d.gaussians.render import cpu
-
         depth_ref, depth_nbrs = ctx.saved_tensors
         grad_ref, grad_nbrs = cpu.extension().roundtrip_backward(depth_ref.detach(), depth_nbrs.detach(), *ctx.args,
                                                                  grad_phi)
@@ -302,7 +182,7 @@ def depth_confirmation(depth: torch.Tensor, ref_grey: torch.Tensor, ref: CameraT
     uv, z = nbrs.project(points)
     shape = (len(nbrs), *depth.shape)
     seen = ((depth > 0).reshape(1, -1) & (z > 0) & nbrs.inside(uv)).reshape(shape)
-    sampled = _sample([torch.stack([d, c.to(d.dtype), g[..., 0]], -1) for d, c, g in
+    sampled = sample_maps([torch.stack([d, c.to(d.dtype), g[..., 0]], -1) for d, c, g in
                        zip(nbr_depths, nbr_confident, nbr_greys)], uv).reshape(*shape, 3)
     theirs, confident, grey = sampled.unbind(-1)
     agrees = seen & (confident >= 1 - 1e-6) & ((z.reshape(shape) - theirs).abs() <= tolerance * theirs)
@@ -316,14 +196,6 @@ def depth_confirmation(depth: torch.Tensor, ref_grey: torch.Tensor, ref: CameraT
     return agrees, ncc, var_a[0] < FLAT_STD ** 2
 
 
-def project_points(points: torch.Tensor, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
-    """(..., 3) points in ``cam``'s frame → pixel coordinates (..., 2) and z (...)."""
-    z = points[..., 2]
-    zs = torch.where(z.abs() > 1e-8, z, torch.full_like(z, 1e-8))
-    uv = torch.stack([cam.fx * points[..., 0] / zs + cam.cx, cam.fy * points[..., 1] / zs + cam.cy], -1)
-    return uv, z
-
-
 def geometric_loss(phi: torch.Tensor, defined: torch.Tensor, threshold: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
     """mean(exp(−φ)·φ) over the pixels of each (H, W) map of ``phi`` (..., H, W) whose round
     trip closes within ``threshold`` px (the weight is not differentiated): shape (...);
@@ -331,16 +203,6 @@ def geometric_loss(phi: torch.Tensor, defined: torch.Tensor, threshold: float = 
     valid = defined & (phi < threshold)
     w = torch.exp(-phi).detach()
     return (w * phi * valid).sum((-2, -1)) / valid.sum((-2, -1)).clamp_min(1), valid
-
-
-def plane_homographies(ref: CameraTensors, nbrs: CameraStack, normal: torch.Tensor,
-                       distance: torch.Tensor) -> torch.Tensor:
-    """(K, M, 3, 3) homographies H = K_n (R − t nᵀ/d) K_r⁻¹ into each neighbour k induced by
-    the planes n·x = −d (``normal`` (K, M, 3), ``distance`` (K, M), reference camera space,
-    n facing the camera, d > 0; n need not be unit length)."""
-    R, t = relative_poses(ref, nbrs)
-    A = R[:, None] - t[:, None, :, None] * normal[..., None, :] / distance[..., None, None]
-    return nbrs.K()[:, None] @ A @ torch.linalg.inv(ref.K())
 
 
 def ncc_loss(ref_grey: torch.Tensor, nbr_greys: Sequence[torch.Tensor], ref: CameraTensors, nbrs: CameraStack,
@@ -355,7 +217,7 @@ def ncc_loss(ref_grey: torch.Tensor, nbr_greys: Sequence[torch.Tensor], ref: Cam
     centres = pixels.flip(-1).to(ref_grey.dtype) + 0.5  # (K, M, 2) as (u, v)
     n = normal[pixels[..., 0], pixels[..., 1]]
     d = distance[pixels[..., 0], pixels[..., 1]]
-    if patch <= 8 and _fused_here(ref_grey, nbr_greys) if fused is None else fused:
+    if patch <= 8 and cpu.fused_here(ref_grey, nbr_greys) if fused is None else fused:
         R, t, intrinsics, ref_intrinsics = _extension_cameras(ref, nbrs, ref_grey.dtype)
         greys = torch.stack([g[..., 0] for g in nbr_greys])
         return _FusedNcc.apply(ref_grey[..., 0], greys, centres, n, d, R, t, intrinsics,
@@ -369,8 +231,8 @@ def ncc_loss(ref_grey: torch.Tensor, nbr_greys: Sequence[torch.Tensor], ref: Cam
     hom = torch.cat([uv_ref, torch.ones_like(uv_ref[..., :1])], -1) @ H.transpose(-1, -2)
     w = hom[..., 2]
     uv_nbr = hom[..., :2] / torch.where(w.abs() > 1e-8, w, torch.full_like(w, 1e-8))[..., None]
-    grey_ref = _sample([ref_grey], uv_ref.reshape(1, -1, 2)).reshape(uv_ref.shape[:-1])
-    grey_nbr = _sample(nbr_greys, uv_nbr)[..., 0]
+    grey_ref = sample_maps([ref_grey], uv_ref.reshape(1, -1, 2)).reshape(uv_ref.shape[:-1])
+    grey_nbr = sample_maps(nbr_greys, uv_nbr)[..., 0]
     a = grey_ref - grey_ref.mean(-1, keepdim=True)
     b = grey_nbr - grey_nbr.mean(-1, keepdim=True)
     cov = (a * b).mean(-1)
@@ -386,8 +248,6 @@ class _FusedNcc(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, ref_grey, nbr_greys, centres, normal, distance, R, t, intrinsics, settings):
-        from eve3d.gaussians.render import cpu
-
         ctx.inputs = (ref_grey, nbr_greys, centres)
         ctx.args = (R, t, intrinsics, *settings)
         ctx.save_for_backward(normal, distance)
@@ -398,8 +258,6 @@ class _FusedNcc(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_loss, _):
-        from eve3d.gaussians.render import cpu
-
         normal, distance = ctx.saved_tensors
         g_normal, g_distance = cpu.extension().ncc_backward(*ctx.inputs, normal.detach(), distance.detach(),
                                                             *ctx.args, grad_loss)

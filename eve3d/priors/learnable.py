@@ -60,7 +60,7 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
     the file; so are priors without a confident pixel in any view. A view without one (a
     blank wall or ceiling: the stereo matches nothing) is named in a warning; it trains
     without prior terms unless the multi-view check confirms some of its depths."""
-    from eve3d.gaussians.losses import depth_to_normal
+    from eve3d.gaussians.geometry import depth_to_normal
     from eve3d.gaussians.render.projection import CameraTensors
 
     folder = Path(folder)

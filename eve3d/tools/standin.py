@@ -175,8 +175,9 @@ def write_mipnerf360_release(scene: Scene, root: Path, name: str = "room") -> Pa
     """A miniature Mip-NeRF 360 scene under ``root`` as 360_v2.zip lays it out:
     ``{name}/images`` (JPEG, upper-case suffix as released), ``images_{2,4,8}`` (area
     downscaled copies), ``sparse/0`` and ``poses_bounds.npy``. Returns the scene folder."""
-    import cv2
     from dataclasses import replace
+
+    import cv2
 
     from eve3d.core.fileio import read_image
     from eve3d.core.io.colmap import write_colmap

@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings
+from eve3d.core.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings,
+                                 StereoSettings)
 from eve3d.core.settings_fields import from_mapping, pick
 from tests.helpers import REPO, SNAKEFILE
 

@@ -2,8 +2,8 @@
 import json
 
 import numpy as np
-import scipy
 import pytest
+import scipy
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh

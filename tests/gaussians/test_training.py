@@ -6,19 +6,19 @@ import numpy as np
 import pytest
 import torch
 
-from eve3d.gaussians.densify import Densifier, reset_opacity
-from eve3d.gaussians.model import GaussianModel
-from eve3d.joint import train_joint
-from eve3d.gaussians.losses import (CameraStack, depth_to_normal, forward_backward_error, geometric_loss, ncc_loss, rgb_loss,
-                          ssim)
 from eve3d.core.errors import Eve3dError
 from eve3d.core.scene import Camera
 from eve3d.core.settings import DensifySettings, JointSettings, TrainSettings
 from eve3d.core.settings_fields import from_mapping
+from eve3d.gaussians.densify import Densifier, reset_opacity
+from eve3d.gaussians.geometry import CameraStack, depth_to_normal
+from eve3d.gaussians.losses import forward_backward_error, geometric_loss, ncc_loss, rgb_loss, ssim
+from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render.projection import CameraTensors
 from eve3d.gaussians.train_state import Checkpoint
 from eve3d.gaussians.training import NonFiniteLoss, Trainer
 from eve3d.gaussians.view_report import view_metrics
+from eve3d.joint import train_joint
 from tests.helpers import joint_settings
 
 

@@ -7,8 +7,8 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-import yaml
 import pytest
+import yaml
 from PIL import Image
 
 from eve3d.core.io import load_scene
@@ -403,7 +403,6 @@ def test_progress_shows_job_starts_ends_and_the_training_bar(tmp_path):
     import time
 
     from snakemake_interface_logger_plugins.common import LogEvent
-
     from snakemake_logger_plugin_eve3d.progress import ProgressHandler, latest_progress
 
     log = tmp_path / "joint_eve3d.log"

@@ -15,6 +15,7 @@ import functools
 import os
 import platform
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
@@ -70,6 +71,12 @@ def available() -> bool:
               "using the slower pure-PyTorch backend", file=sys.stderr)
         return False
     return True
+
+
+def fused_here(image: torch.Tensor, maps: Sequence[torch.Tensor] = ()) -> bool:
+    """Whether a loss runs in the extension: CPU tensors, neighbours' maps of one size (the
+    multi-view terms stack them; the image losses pass none), and an extension that builds here."""
+    return image.device.type == "cpu" and all(m.shape == maps[0].shape for m in maps) and available()
 
 
 def project(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,

@@ -12,7 +12,6 @@ from unittest import mock
 from eve3d.core.errors import Eve3dError
 from eve3d.tools.bench.common import in_child, peak_rss_mb
 
-
 SCALE_KIND = "room"
 """The generated scene ``eve3d bench scale`` runs (a Meetingroom-like room seen from inside)."""
 SCALE_METHODS = ("pgsr", "eve3d")

@@ -18,7 +18,9 @@ class LogHandler(LogHandlerBase):
 
         from snakemake.logging import DefaultFormatter
 
-        from snakemake_logger_plugin_eve3d.progress import ProgressHandler  # imported here: Snakemake imports every plugin at start
+        from snakemake_logger_plugin_eve3d.progress import (
+            ProgressHandler,  # imported here: Snakemake imports every plugin at start
+        )
 
         formatter = DefaultFormatter(self.common_settings.quiet, self.common_settings.show_failed_logs)
         self.progress = ProgressHandler(sys.stdout if self.common_settings.stdout else sys.stderr,
