@@ -20,7 +20,7 @@ from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_path
 from eve3d.core.maps import load_maps, map_camera
 from eve3d.core.photos import read_view
-from eve3d.core.scene import Camera, Scene
+from eve3d.core.scene import Camera, Scene, look_at
 from eve3d.core.settings import MeshSettings
 from eve3d.core.timing import phase
 
@@ -415,15 +415,12 @@ def extent_report(mesh, scene: Scene) -> dict:
             "sparse_extent": None if sparse is None else sparse.round(4).tolist(), "extent_ratio": ratio}
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray, like: Camera, size: int, name: str) -> Camera:
+def view_from(eye: np.ndarray, target: np.ndarray, up: np.ndarray, like: Camera, size: int, name: str) -> Camera:
     """A camera at ``eye`` looking at ``target`` (``up`` up in the image), with ``like``'s
     field of view and aspect, its longest side ``size`` px."""
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])
+    R, t = look_at(eye, target, up)
     small = like.scaled(size / max(like.width, like.height))
-    return replace(small, name=name, R=R, t=-R @ eye, image_path=None, mask_path=None)
+    return replace(small, name=name, R=R, t=t, image_path=None, mask_path=None)
 
 
 def view_cameras(mesh, scene: Scene, size: int = 640) -> list[Camera]:
@@ -445,7 +442,7 @@ def view_cameras(mesh, scene: Scene, size: int = 640) -> list[Camera]:
     like = scene.cameras[0]
     distance = 0.5 * diagonal / np.tan(np.arctan(min(like.width, like.height) / 2 / like.fx))
     eye = centre + distance * (back * np.cos(np.radians(35)) + up * np.sin(np.radians(35)))
-    return views + [look_at(eye, centre, up, like, size, "overview")]
+    return views + [view_from(eye, centre, up, like, size, "overview")]
 
 
 def shaded(mesh, cam: Camera) -> np.ndarray:

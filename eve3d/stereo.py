@@ -137,12 +137,9 @@ def _window_ncc(photo: np.ndarray, other: np.ndarray, window: int) -> np.ndarray
     scores 1; a textured one against a flat one scores 0."""
     import cv2
 
-    from eve3d.gaussians.losses import FLAT_STD
+    from eve3d.gaussians.losses import FLAT_STD, window_moments
 
-    box = lambda x: cv2.blur(x, (window, window))  # noqa: E731
-    ma, mb = box(photo), box(other)
-    cov = box(photo * other) - ma * mb
-    va, vb = np.maximum(box(photo * photo) - ma * ma, 0), np.maximum(box(other * other) - mb * mb, 0)
+    cov, va, vb = window_moments(photo, other, lambda x: cv2.blur(x, (window, window)))
     flat = (FLAT_STD * 255) ** 2
     ncc = np.where(vb > flat, cov / np.sqrt(va * vb + 1e-12), 0)
     return np.where(va > flat, ncc, 1).astype(np.float32)

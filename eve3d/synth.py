@@ -33,7 +33,7 @@ from eve3d.core.fileio import atomic_dir, write_image
 from eve3d.core.io.colmap import triangulate_known_poses, write_colmap
 from eve3d.core.io.loader import METADATA
 from eve3d.core.raycast import MeshRaycaster, seen_by
-from eve3d.core.scene import Camera, Scene
+from eve3d.core.scene import Camera, Scene, look_at
 from eve3d.core.settings import SfmSettings, SyntheticSettings
 from eve3d.core.surface import sample_surface
 from eve3d.core.timing import phase
@@ -227,17 +227,6 @@ def plane_parts() -> list[Part]:
                  Material("noise", (0.85, 0.7, 0.5), (0.2, 0.15, 0.25), scale=6.0))]
 
 
-def _look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World-to-camera (R, t) of an OpenCV camera at ``center`` looking at ``target``."""
-    z = target - center
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    return R, -R @ center
-
-
 def object_cameras(n: int, width: int, height: int, rng: np.random.Generator, arc: float = 360.0) -> list[Camera]:
     """Cameras 3 units from the object on a spiral over ``arc`` degrees of azimuth whose
     elevation swings smoothly between 28° and 58°, so that neighbours overlap well."""
@@ -249,7 +238,7 @@ def object_cameras(n: int, width: int, height: int, rng: np.random.Generator, ar
         elev = np.radians(43 - 15 * np.cos(4 * np.pi * frac) + rng.uniform(-2, 2))
         azim = np.radians(arc) * (frac - (0 if arc >= 360 else 0.5)) + rng.uniform(-0.02, 0.02)
         center = 3.0 * np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
-        R, t = _look_at(center, np.array([0, 0, 0.2]) + rng.normal(0, 0.03, 3), np.array([0, 0, 1.0]))
+        R, t = look_at(center, np.array([0, 0, 0.2]) + rng.normal(0, 0.03, 3), np.array([0, 0, 1.0]))
         cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
     return cams
 
@@ -264,7 +253,7 @@ def room_cameras(n: int, width: int, height: int, rng: np.random.Generator, arc:
         center = np.array([1.9 * np.cos(a) - 0.2, 1.4 * np.sin(a), 1.5 + rng.uniform(-0.15, 0.15)])
         yaw = a + np.pi / 2 * (1 if i % 2 else -0.3) + rng.uniform(-0.2, 0.2)
         target = center + np.array([np.cos(yaw), np.sin(yaw), -0.35 + rng.uniform(-0.1, 0.1)])
-        R, t = _look_at(center, target, np.array([0, 0, 1.0]))
+        R, t = look_at(center, target, np.array([0, 0, 1.0]))
         cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
     return cams
 
@@ -281,7 +270,7 @@ def inside_cameras(n: int, width: int, height: int, rng: np.random.Generator, ar
         center = np.array([-0.6, -0.4, 1.55]) + rng.uniform(-0.25, 0.25, 3) * [1, 1, 0.4]
         pitch = -0.45 + 0.35 * np.sin(5 * yaw) + rng.uniform(-0.05, 0.05)
         target = center + np.array([np.cos(yaw), np.sin(yaw), pitch])
-        R, t = _look_at(center, target, np.array([0, 0, 1.0]))
+        R, t = look_at(center, target, np.array([0, 0, 1.0]))
         cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
     return cams
 
@@ -295,7 +284,7 @@ def plane_cameras(n: int, width: int, height: int, rng: np.random.Generator, arc
     for i in range(n):
         a = np.radians(arc) * i / n
         center = np.array([0.5 * np.cos(a), 0.5 * np.sin(a), 2.0 + rng.uniform(-0.1, 0.1)])
-        R, t = _look_at(center, np.array([0.0, 0.0, 0.0]) + rng.normal(0, 0.05, 3) * [1, 1, 0], np.array([0, 1.0, 0]))
+        R, t = look_at(center, np.array([0.0, 0.0, 0.0]) + rng.normal(0, 0.05, 3) * [1, 1, 0], np.array([0, 1.0, 0]))
         cams.append(Camera(f"{i:03d}.png", width, height, K, R, t))
     return cams
 

@@ -101,11 +101,11 @@ def test_summary_page_shows_units_and_marks_the_best_of_each_scene():
 def _ring(count: int, radius: float, height: float) -> list:
     """Cameras on a ring round the origin, above it, looking at it (z up)."""
     from eve3d.core.scene import Camera
-    from eve3d.mesh import look_at
+    from eve3d.mesh import view_from
 
     like = Camera("like", 160, 120, np.array([[150.0, 0, 80], [0, 150, 60], [0, 0, 1]]), np.eye(3), np.zeros(3))
     angles = 2 * np.pi * np.arange(count) / count
-    return [look_at(np.array([radius * np.cos(a), radius * np.sin(a), height]), np.zeros(3), np.array([0, 0, 1.0]),
+    return [view_from(np.array([radius * np.cos(a), radius * np.sin(a), height]), np.zeros(3), np.array([0, 0, 1.0]),
                     like, 160, f"view{k}") for k, a in enumerate(angles)]
 
 

@@ -14,6 +14,17 @@ import numpy as np
 SceneKind = Literal["object", "scene"]
 
 
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera (R, t) of an OpenCV camera at ``eye`` looking at ``target``, ``up``
+    pointing up in its image."""
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])
+    return R, -R @ eye
+
+
 @dataclass
 class Camera:
     """One posed pinhole view."""

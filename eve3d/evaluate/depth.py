@@ -122,12 +122,16 @@ def prior_agreement(scene, maps_dir: Path, neighbours: int = 2, stride: int = 4,
                     min_confidence: float = MeshSettings.min_confidence) -> dict:
     """Without ground truth: how far neighbouring views' depth maps agree. Every
     ``stride``-th confident pixel of a view is back-projected and projected into each of its
-    ``neighbours`` (``eve3d.gaussians.neighbours``); where it lands on a confident pixel of the
+    ``neighbours`` (``eve3d.gaussians.neighbours``, :func:`eve3d.gaussians.geometry.reproject`); where it lands on a confident pixel of the
     neighbour, the relative difference |z − D_n| / D_n between its depth there and the
     neighbour's map counts. Returns the median of those differences, the share over 5 %,
     the density (confident / all pixels) and how many pixels were compared. A surface seen
     by both views agrees; a wrong depth in either does not (occlusions count against too)."""
+    import torch
+
+    from eve3d.gaussians.geometry import CameraStack, reproject
     from eve3d.gaussians.neighbours import select_neighbours
+    from eve3d.gaussians.render.projection import CameraTensors
 
     maps_dir = Path(maps_dir)
     views = []
@@ -138,18 +142,22 @@ def prior_agreement(scene, maps_dir: Path, neighbours: int = 2, stride: int = 4,
         m = load_maps(path)
         depth = np.where(m.get("confidence", np.ones_like(m["depth"])) >= min_confidence, m["depth"], 0)
         views.append((map_camera(cam, depth.shape, path), depth))
+    tensors = [CameraTensors.from_camera(cam, torch.float64) for cam, _ in views]
     diffs, confident, pixels = [], 0, 0
-    for (cam, depth), near in zip(views, select_neighbours(scene, neighbours)):
+    for (cam, depth), ref, near in zip(views, tensors, select_neighbours(scene, neighbours)):
         confident, pixels = confident + int((depth > 0).sum()), pixels + depth.size
-        points = cam.backproject(depth)[::stride, ::stride][depth[::stride, ::stride] > 0]
-        for j in near:
+        if not near:
+            continue
+        uv, z = reproject(torch.from_numpy(depth.astype(np.float64)), ref, CameraStack([tensors[j] for j in near]))
+        picked = torch.zeros(depth.shape, dtype=torch.bool)
+        picked[::stride, ::stride] = torch.from_numpy(depth[::stride, ::stride] > 0)
+        for j, uv_j, z_j in zip(near, uv[:, picked.reshape(-1)].numpy(), z[:, picked.reshape(-1)].numpy()):
             other, their = views[j]
-            uv, z = other.project(points)
-            inside = other.in_image(uv, z)
-            px = np.floor(uv[inside]).astype(int)
+            inside = other.in_image(uv_j, z_j)
+            px = np.floor(uv_j[inside]).astype(int)
             d = their[px[:, 1], px[:, 0]]
             ok = d > 0
-            diffs.append(np.abs(z[inside][ok] - d[ok]) / d[ok])
+            diffs.append(np.abs(z_j[inside][ok] - d[ok]) / d[ok])
     diff = np.concatenate(diffs) if diffs else np.zeros(0)
     return {"data": str(maps_dir), "density": confident / max(pixels, 1),
             "median_disagreement": float(np.median(diff)) if len(diff) else None,

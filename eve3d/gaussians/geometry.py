@@ -105,6 +105,14 @@ def relative_poses(ref: CameraTensors, nbrs: CameraStack) -> tuple[torch.Tensor,
     return R, nbrs.t - R @ ref.t
 
 
+def reproject(depth: torch.Tensor, ref: CameraTensors, nbrs: CameraStack) -> tuple[torch.Tensor, torch.Tensor]:
+    """Where each pixel of a reference depth map (H, W) lands in K neighbours: it is
+    back-projected and projected into each. Returns pixel coordinates (K, HW, 2) and the
+    depth in each neighbour's frame (K, HW)."""
+    R, t = relative_poses(ref, nbrs)
+    return nbrs.project(depth_to_points(depth, ref).reshape(1, -1, 3) @ R.transpose(1, 2) + t[:, None])
+
+
 def sample_maps(maps: Sequence[torch.Tensor], uv: torch.Tensor) -> torch.Tensor:
     """Bilinear lookup of K (H, W, C) ``maps`` at pixel coordinates ``uv`` (K, ..., 2), map
     k at uv[k] (pixel centres at +0.5); the border value continues outside (callers mask

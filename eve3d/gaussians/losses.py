@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 
-from eve3d.gaussians.geometry import (CameraStack, depth_to_normal, depth_to_points, plane_homographies, relative_poses,
+from eve3d.gaussians.geometry import (CameraStack, depth_to_normal, plane_homographies, relative_poses, reproject,
                                       sample_maps)
 from eve3d.gaussians.render import cpu
 from eve3d.gaussians.render.projection import CameraTensors
@@ -122,10 +122,8 @@ def forward_backward_error(depth_ref: torch.Tensor, depth_nbrs: Sequence[torch.T
     if cpu.fused_here(depth_ref, depth_nbrs) if fused is None else fused:
         R, t, intrinsics, ref_intrinsics = _extension_cameras(ref, nbrs, depth_ref.dtype)
         return _RoundTrip.apply(depth_ref, torch.stack(list(depth_nbrs)), R, t, intrinsics, ref_intrinsics)
+    uv_n, z_n = reproject(depth_ref, ref, nbrs)
     R, t = relative_poses(ref, nbrs)
-    p_ref = depth_to_points(depth_ref, ref)
-    p_nbr = p_ref.reshape(1, -1, 3) @ R.transpose(1, 2) + t[:, None]  # (K, HW, 3)
-    uv_n, z_n = nbrs.project(p_nbr)
     d_n = sample_maps([d[..., None] for d in depth_nbrs], uv_n)[..., 0]
     back = (nbrs.rays_at(uv_n) * d_n[..., None] - t[:, None]) @ R  # neighbour → reference: Rᵀ (x − t)
     uv_r, z_r = CameraStack([ref]).project(back)
@@ -161,6 +159,16 @@ FLAT_STD = 0.5 / 255
 texture: a photometric check can neither confirm nor refute a depth there."""
 
 
+def window_moments(a, b, box):
+    """The covariance and both variances of two images over every window that ``box``
+    averages (OpenCV's box filter on NumPy arrays, or a pooling on tensors): the terms of a
+    windowed NCC, cov / √(var_a · var_b)."""
+    mean_a, mean_b = box(a), box(b)
+    var_a = (box(a * a) - mean_a * mean_a).clip(min=0)
+    var_b = (box(b * b) - mean_b * mean_b).clip(min=0)
+    return box(a * b) - mean_a * mean_b, var_a, var_b
+
+
 @torch.no_grad()
 def depth_confirmation(depth: torch.Tensor, ref_grey: torch.Tensor, ref: CameraTensors, nbrs: CameraStack,
                        nbr_depths: Sequence[torch.Tensor], nbr_confident: Sequence[torch.Tensor],
@@ -177,21 +185,17 @@ def depth_confirmation(depth: torch.Tensor, ref_grey: torch.Tensor, ref: CameraT
 
     A tolerance in relative depth means the same at every image size, where a pixel
     tolerance loosens as the images shrink and the baselines narrow."""
-    R, t = relative_poses(ref, nbrs)
-    points = depth_to_points(depth, ref).reshape(1, -1, 3) @ R.transpose(1, 2) + t[:, None]  # (K, HW, 3)
-    uv, z = nbrs.project(points)
+    uv, z = reproject(depth, ref, nbrs)
     shape = (len(nbrs), *depth.shape)
     seen = ((depth > 0).reshape(1, -1) & (z > 0) & nbrs.inside(uv)).reshape(shape)
     sampled = sample_maps([torch.stack([d, c.to(d.dtype), g[..., 0]], -1) for d, c, g in
                        zip(nbr_depths, nbr_confident, nbr_greys)], uv).reshape(*shape, 3)
     theirs, confident, grey = sampled.unbind(-1)
     agrees = seen & (confident >= 1 - 1e-6) & ((z.reshape(shape) - theirs).abs() <= tolerance * theirs)
-    box = lambda x: F.avg_pool2d(x[:, None], window, 1, window // 2, count_include_pad=False)[:, 0]  # noqa: E731
-    a, b = ref_grey[..., 0][None], grey
-    mean_a, mean_b = box(a), box(b)
-    var_a = (box(a * a) - mean_a ** 2).clamp_min(0)
-    var_b = (box(b * b) - mean_b ** 2).clamp_min(0)
-    ncc = (box(a * b) - mean_a * mean_b) / torch.sqrt(var_a * var_b + 1e-12)
+    cov, var_a, var_b = window_moments(
+        ref_grey[..., 0][None], grey,
+        lambda x: F.avg_pool2d(x[:, None], window, 1, window // 2, count_include_pad=False)[:, 0])
+    ncc = cov / torch.sqrt(var_a * var_b + 1e-12)
     ncc = torch.where(seen & (var_b > FLAT_STD ** 2), ncc, torch.full_like(ncc, -1.0))
     return agrees, ncc, var_a[0] < FLAT_STD ** 2
 

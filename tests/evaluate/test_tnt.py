@@ -8,13 +8,12 @@ from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import write_image
 from eve3d.core.io import load_scene
 from eve3d.core.io.colmap import write_colmap
-from eve3d.core.scene import Camera, Scene
+from eve3d.core.scene import Camera, Scene, look_at
 from eve3d.core.settings import EvalSettings
 from eve3d.core.surface import sample_surface
 from eve3d.evaluate import EvalInputs
 from eve3d.evaluate.common import hot_r
 from eve3d.evaluate.tnt import TAU, align_trajectory, evaluate_tnt, log_centres, read_crop, score
-from eve3d.synth import _look_at
 from eve3d.tools.standin import similarity, write_crop, write_log
 
 
@@ -174,7 +173,7 @@ def write_tnt_layout(root, name="Ignatius", n_log=20, gt_points=250_000):
     K = [[8.0, 0, 4.0], [0, 8.0, 3.0], [0, 0, 1]]
     cameras, log = [], []
     for i, c in enumerate(centres):
-        rot = _look_at(c, target, np.array([0.0, 0.0, 1.0]))[0].T   # camera-to-world, GT frame
+        rot = look_at(c, target, np.array([0.0, 0.0, 1.0]))[0].T   # camera-to-world, GT frame
         c_ours = apply(S, c[None])[0] + rng.normal(0, CAMERA_NOISE * 1.05, 3)
         r_ours = S[:3, :3] @ rot / 1.05
         cameras.append(Camera(f"{i:03d}.png", 8, 6, K, r_ours.T, -r_ours.T @ c_ours))
