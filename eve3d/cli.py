@@ -115,8 +115,7 @@ def _cmd_evaluate(a: argparse.Namespace) -> None:
     if a.check:
         check(settings, **paths)
         return
-    min_confidence = _settings(a, MeshSettings, "mesh", config).min_confidence  # the pixels the mesh fused
-    run(settings, min_confidence, **paths, mesh=a.mesh, model=a.model, depth=a.depth, exact_depth=a.exact_depth,
+    run(settings, _settings(a, MeshSettings, "mesh", config), **paths, mesh=a.mesh, model=a.model, depth=a.depth, exact_depth=a.exact_depth,
         row={"scene": a.scene_name, "method": a.method} if a.scene_name else None)
 
 

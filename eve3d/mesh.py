@@ -18,7 +18,7 @@ from eve3d.core import chunking
 from eve3d.core.chunking import chunks
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_path
-from eve3d.core.maps import load_maps, map_camera
+from eve3d.core.maps import fusable, load_maps, map_camera
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Scene, look_at
 from eve3d.core.settings import MeshSettings
@@ -36,7 +36,7 @@ time. A block is about 10 KB of grid and 8 KB of marching-cubes buffers, so a gr
 
 
 def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
-    """Yield (camera at the map's size, depth with low-confidence pixels zeroed) for every
+    """Yield (camera at the map's size, depth zeroed where it is not fusable) for every
     view, one map read at a time (its depth and confidence only, not its normals)."""
     for cam in scene.cameras:
         path = depth_dir / f"{cam.view_id}.npz"
@@ -45,8 +45,7 @@ def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
         maps = load_maps(path, ("depth", "confidence"))
         depth = maps["depth"].astype(np.float32)
         small = map_camera(cam, depth.shape, path)  # fused at the map's size (priors: the pretrain's)
-        if "confidence" in maps:
-            depth = np.where(maps["confidence"] >= min_confidence, depth, 0).astype(np.float32)
+        depth = np.where(fusable(maps, min_confidence), depth, 0).astype(np.float32)
         yield small, depth
 
 

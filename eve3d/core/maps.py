@@ -35,6 +35,15 @@ def load_maps(path: Path, keys: Sequence[str] | None = None) -> dict[str, np.nda
         raise Eve3dError(f"{path}: cannot read map file ({e})") from None
 
 
+def fusable(maps: dict[str, np.ndarray], min_confidence: float) -> np.ndarray:
+    """(H, W) bool: the pixels of a view's maps that a mesh fuses, and that the depth scores
+    count: a positive depth whose confidence, where the maps have one, is at least
+    ``min_confidence`` (``mesh.min_confidence``)."""
+    depth = maps["depth"]
+    confident = maps["confidence"] >= min_confidence if "confidence" in maps else np.ones(depth.shape, bool)
+    return confident & (depth > 0)
+
+
 def same_aspect(shape: tuple[int, ...], width: int, height: int) -> bool:
     """Whether a map of ``shape`` (H, W, ...) is a ``width``×``height`` image at some scale
     (to a pixel of rounding), so it can be resampled to that size."""

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.scene import Scene
-from eve3d.core.settings import EvalSettings
+from eve3d.core.settings import EvalSettings, MeshSettings
 from eve3d.core.settings_fields import flag
 from eve3d.core.timing import phase
 
@@ -194,12 +194,13 @@ def check(settings: EvalSettings, *, scene: Path, out: Path, protocol: str | Non
         tmp.write_text(json.dumps(checked, indent=2))
 
 
-def run(settings: EvalSettings, min_confidence: float, *, scene: Path, out: Path, protocol: str | None = None,
+def run(settings: EvalSettings, mesh_settings: MeshSettings, *, scene: Path, out: Path, protocol: str | None = None,
         ground_truth: Mapping[str, Path | None], mesh: Path | None = None, model: Path | None = None,
         depth: Path | None = None, exact_depth: Path | None = None, row: Mapping[str, str] | None = None) -> None:
     """The ``evaluate`` stage: score ``mesh`` (or the trained ``model``, as the protocol asks)
     against the ground truth into ``out`` (metrics.json), with the accuracy of the ``depth``
-    maps it fused against ``exact_depth`` (pixels of confidence ≥ ``min_confidence``);
+    maps it fused against ``exact_depth`` (the pixels ``mesh_settings`` fuses,
+    :func:`eve3d.core.maps.fusable`);
     ``row`` (scene, method) names the record."""
     import json
 
@@ -221,7 +222,7 @@ def run(settings: EvalSettings, min_confidence: float, *, scene: Path, out: Path
         from eve3d.evaluate.depth import depth_accuracy
 
         with phase("depth accuracy"):
-            acc = depth_accuracy(Path(depth), Path(exact_depth), min_confidence=min_confidence)
+            acc = depth_accuracy(Path(depth), Path(exact_depth), min_confidence=mesh_settings.min_confidence)
         metrics.update({"depth_signed_error": acc["median_signed_error"], "depth_error": acc["median_rel_error"],
                         "depth_density": acc["density"], "depth_on_empty": acc["on_empty"], "depth_maps": str(depth)})
     if "tau" in metrics:

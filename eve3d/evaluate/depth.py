@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.maps import depth_at, load_maps, map_camera, same_aspect
+from eve3d.core.maps import depth_at, fusable, load_maps, map_camera, same_aspect
 from eve3d.core.settings import MeshSettings, StereoSettings
 
 WEAK_TEXTURE = 2.0
@@ -72,13 +72,12 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
                              f"{ref['depth'].shape[::-1]}: maps of different shapes cannot be compared")
         # a map made at another size (priors at the pretrain's) is scored at the exact depth's
         maps = {k: depth_at(v, w, h) for k, v in maps.items()}
-        confidence = maps.get("confidence", np.ones_like(maps["depth"]))
-        has = ref.get("confidence", ref["depth"]) > 0
-        use = has & (confidence >= min_confidence) & (maps["depth"] > 0)
+        has, fused = ref.get("confidence", ref["depth"]) > 0, fusable(maps, min_confidence)
+        use = has & fused
         errors.append((maps["depth"][use] - ref["depth"][use]) / ref["depth"][use])
         confident, known = confident + int(use.sum()), known + int(has.sum())
         empty += int((~has).sum())
-        filled += int((~has & (confidence >= min_confidence) & (maps["depth"] > 0)).sum())
+        filled += int((~has & fused).sum())
         if images is not None:
             weak = weak_texture(images, ref_path.stem, w, h, window)
             weak_errors.append(errors[-1][weak[use]])
@@ -140,7 +139,7 @@ def prior_agreement(scene, maps_dir: Path, neighbours: int = 2, stride: int = 4,
         if not path.exists():
             raise Eve3dError(f"{path}: missing (the scene has view {cam.view_id})")
         m = load_maps(path)
-        depth = np.where(m.get("confidence", np.ones_like(m["depth"])) >= min_confidence, m["depth"], 0)
+        depth = np.where(fusable(m, min_confidence), m["depth"], 0)
         views.append((map_camera(cam, depth.shape, path), depth))
     tensors = [CameraTensors.from_camera(cam, torch.float64) for cam, _ in views]
     diffs, confident, pixels = [], 0, 0
