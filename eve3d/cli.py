@@ -106,12 +106,12 @@ def _cmd_mesh(a: argparse.Namespace) -> None:
 
 def _cmd_evaluate(a: argparse.Namespace) -> None:
     from eve3d.core.settings import EvalSettings, MeshSettings
-    from eve3d.evaluate import check, run
+    from eve3d.evaluate import GROUND_TRUTH_INPUTS, check, run
 
     config = _config(a)
     settings = _settings(a, EvalSettings, "evaluate", config)
     paths = dict(scene=a.scene, out=a.out, protocol=a.protocol,
-                 ground_truth={"gt": a.gt, "obs_mask": a.obs_mask, "plane": a.plane})
+                 ground_truth={name: getattr(a, name) for name in GROUND_TRUTH_INPUTS})
     if a.check:
         check(settings, **paths)
         return
@@ -402,7 +402,8 @@ def _add_mesh_parsers(sub) -> None:
 
     from eve3d.core.scene import SceneKind
     from eve3d.core.settings import EvalSettings, MeshSettings
-    from eve3d.evaluate import DEFAULT_PROTOCOL, PROTOCOLS, WITHOUT_GT
+    from eve3d.core.settings_fields import flag
+    from eve3d.evaluate import DEFAULT_PROTOCOL, GROUND_TRUTH_INPUTS, PROTOCOLS, WITHOUT_GT
 
     s = _stage(sub, "mesh", _cmd_mesh, "TSDF-fuse per-view depth maps into mesh.ply", (MeshSettings, "mesh"))
     s.add_argument("--scene", required=True)
@@ -419,9 +420,8 @@ def _add_mesh_parsers(sub) -> None:
     s.add_argument("--protocol", choices=list(PROTOCOLS),
                    help="default by dataset format when its ground truth is given: " + ", ".join(
                        f"{k} → {v}" for k, v in DEFAULT_PROTOCOL.items()) + f"; else {WITHOUT_GT}")
-    s.add_argument("--gt", help="synthetic: the GT mesh; dtu: the stl…_total.ply point cloud")
-    s.add_argument("--obs-mask", help="dtu: ObsMask{scan}_10.mat")
-    s.add_argument("--plane", help="dtu: Plane{scan}.mat")
+    for name, keys in GROUND_TRUTH_INPUTS.items():  # what the workflow's scene config gives each protocol
+        s.add_argument(flag(name), help="; ".join(f"{p}: the scene's {key}" for p, key in keys.items()))
     s.add_argument("--depth", help="the depth maps the mesh was fused from: their median signed and absolute "
                                    "relative error against --exact-depth (pixels of confidence ≥ mesh.min_confidence) "
                                    "are added to the metrics")

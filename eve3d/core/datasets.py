@@ -99,7 +99,7 @@ def mipnerf360_scene(root: Path, name: str) -> dict:
 
     if find_colmap_model(folder) is None:
         raise _expected(folder / "sparse" / "0", "the scene's COLMAP model", root)
-    return {"path": str(folder), "protocol": "nvs"}
+    return {"path": str(folder)}
 
 
 # --------------------------------------------------------------------------- registry
@@ -110,6 +110,12 @@ class Benchmark:
     title: str
     scene: Callable[[Path, str], dict]
     """(root, released scene name) → the workflow scene's keys, after checking its files."""
+    protocol: str
+    """The evaluation protocol its scenes are scored by (``eve3d.evaluate.PROTOCOLS``)."""
+    standin: str
+    """``function`` of :mod:`eve3d.tools.standin` that writes a generated scene in this layout
+    (``eve3d bench standin``, the workflow tests' miniatures), and the released scene it is
+    written as: ``write_tnt_release:Barn``."""
     published: tuple[tuple[str, str, float], ...] = ()
     """(method, summary.csv column, value): the means over the benchmark's scenes that the
     Eve3D paper reports (GPU, half resolution; DESIGN §4), shown beside a run's means."""
@@ -122,12 +128,14 @@ class Benchmark:
 
 
 BENCHMARKS: dict[str, Benchmark] = {b.name: b for b in (
-    Benchmark("dtu", "DTU (2DGS/NeuS release, official Points/stl and ObsMask)", dtu_scene,
-              published=(("pgsr", "chamfer", 0.52),)),
-    Benchmark("tnt", "Tanks and Temples (GOF/2DGS COLMAP release, official evaluation files)", tnt_scene,
+    Benchmark("dtu", "DTU (2DGS/NeuS release, official Points/stl and ObsMask)", dtu_scene, "dtu",
+              "write_dtu_release:scan24", published=(("pgsr", "chamfer", 0.52),)),
+    Benchmark("tnt", "Tanks and Temples (GOF/2DGS COLMAP release, official evaluation files)", tnt_scene, "tnt",
+              "write_tnt_release:Barn",
               published=(("eve3d", "fscore", 0.58), ("eve3d-fast", "fscore", 0.56), ("pgsr", "fscore", 0.51),
                          ("stereo-tsdf", "fscore", 0.35))),
-    Benchmark("mipnerf360", "Mip-NeRF 360 (360_v2.zip as released)", mipnerf360_scene),
+    Benchmark("mipnerf360", "Mip-NeRF 360 (360_v2.zip as released)", mipnerf360_scene, "nvs",
+              "write_mipnerf360_release:room"),
 )}
 
 
@@ -148,7 +156,8 @@ def expand_benchmark(config: dict, source: str = "config") -> dict:
         raise Eve3dError(f"{source}: root: {root} is not a folder")
     for scene, own in config["scenes"].items():
         try:
-            config["scenes"][scene] = {**BENCHMARKS[name].scene(root, scene), **(own or {})}
+            config["scenes"][scene] = {**BENCHMARKS[name].scene(root, scene), "protocol": BENCHMARKS[name].protocol,
+                                       **(own or {})}
         except Eve3dError as e:
             raise Eve3dError(f"{source}: scenes.{scene} ({name} benchmark): {e}") from None
     return config

@@ -59,6 +59,9 @@ class Protocol:
     CLI flag, ``--obs-mask`` for ``obs_mask``)."""
     formats: tuple[str, ...] = ()
     """Dataset formats it applies to (empty: any)."""
+    default_of: tuple[str, ...] = ()
+    """Dataset formats (``eve3d.core.io.loader.FORMATS``) whose scenes it scores when they
+    name no protocol and its ground truth is given (:data:`DEFAULT_PROTOCOL`)."""
     own_poses: bool = False
     """The ground truth lies in the dataset's own frame, so SfM poses (a frame of their own)
     cannot be scored."""
@@ -120,12 +123,14 @@ def library_versions() -> dict[str, str]:
 
 PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (
     Protocol("synthetic", "GT mesh: visible GT surface, exact point-to-triangle distances, F-score at τ",
-             "mesh", "synthetic:evaluate_synthetic", {"gt": "gt_mesh"}, own_poses=True, unit="scene units"),
+             "mesh", "synthetic:evaluate_synthetic", {"gt": "gt_mesh"}, default_of=("colmap",), own_poses=True,
+             unit="scene units"),
     Protocol("dtu", "DTUeval-python: mask culling, 0.2 mm sampling, ObsMask crop, Chamfer in mm",
              "mesh", "dtu:evaluate_dtu", {"gt": "dtu.stl", "obs_mask": "dtu.obs_mask", "plane": "dtu.plane"},
-             formats=("dtu",), unit="mm", check="dtu:check_alignment"),
+             formats=("dtu",), default_of=("dtu",), unit="mm", check="dtu:check_alignment"),
     Protocol("tnt", "Tanks and Temples toolbox: trajectory alignment, ICP, polygon crop, F-score at τ",
-             "mesh", "tnt:evaluate_tnt", formats=("tnt",), own_poses=True, unit="m", check="tnt:check_alignment"),
+             "mesh", "tnt:evaluate_tnt", formats=("tnt",), default_of=("tnt",), own_poses=True, unit="m",
+             check="tnt:check_alignment"),
     Protocol("nvs", "held-out views (every 8th, Mip-NeRF 360): PSNR and SSIM of the rendered model",
              "model", "nvs:evaluate_views", joint_settings={"holdout": 8}),
 )}
@@ -133,9 +138,17 @@ PROTOCOLS: dict[str, Protocol] = {p.name: p for p in (
 GIVEN_TAU = "given (evaluate.tau)"
 """``tau_rule`` of a τ the user set."""
 
-DEFAULT_PROTOCOL: dict[str, str] = {"colmap": "synthetic", "dtu": "dtu", "tnt": "tnt"}
+DEFAULT_PROTOCOL: dict[str, str] = {fmt: p.name for p in PROTOCOLS.values() for fmt in p.default_of}
 """Protocol of each dataset format (``eve3d.core.io.loader.dataset_format``) when its ground truth
 is given and a scene names none."""
+
+
+GROUND_TRUTH_INPUTS: dict[str, dict[str, str]] = {}
+"""Each ground-truth input of the protocols (an :class:`EvalInputs` field, and the CLI flag of
+``eve3d evaluate``) → {protocol: the workflow scene's config key that gives it}."""
+for _protocol in PROTOCOLS.values():
+    for _name, _key in _protocol.config_inputs.items():
+        GROUND_TRUTH_INPUTS.setdefault(_name, {})[_protocol.name] = _key
 WITHOUT_GT = "nvs"
 """The default protocol of a scene whose format's protocol has none of its ground truth
 (a folder of photos): held-out views need nothing but the photos."""
@@ -162,7 +175,7 @@ def _inputs(scene: Path, protocol: str | None, ground_truth: Mapping[str, Path |
     from eve3d.core.io import load_scene
 
     loaded = load_scene(scene, check_images=False)
-    fields = {key: name for p in PROTOCOLS.values() for name, key in p.config_inputs.items()}
+    fields = {key: name for name, keys in GROUND_TRUTH_INPUTS.items() for key in keys.values()}
     chosen = protocol_for(protocol, loaded.extras.get("format", "colmap"), "--protocol",
                           lambda key: ground_truth.get(fields[key]) is not None)
     return chosen, loaded, {k: Path(v) if v else None for k, v in ground_truth.items()}

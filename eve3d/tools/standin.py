@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -76,9 +77,10 @@ def write_dtu_ground_truth(scene: Scene, root: Path, scan: int, scale_mat: np.nd
     return files
 
 
-def write_dtu_release(scene: Scene, root: Path, scan: int = 24, crop: int = 4, stl_points: int = 100_000) -> Path:
+def write_dtu_release(scene: Scene, root: Path, name: str = "scan24", crop: int = 4, stl_points: int = 100_000
+                      ) -> Path:
     """A miniature DTU download under ``root`` as the 2DGS release and the official
-    evaluation files lay it out: ``scan{scan}/`` with ``images/`` cropped by ``crop`` px on
+    evaluation files lay it out: ``{name}/`` (``scan24``) with ``images/`` cropped by ``crop`` px on
     every side (2DGS crops 1600×1200 to 1554×1162), full-size ``mask/``, ``cameras.npz`` of
     the full frame and a COLMAP model of the cropped photos in the same normalised frame;
     ``Points/stl`` and ``ObsMask`` beside the scan folders. Returns the scan folder."""
@@ -87,7 +89,9 @@ def write_dtu_release(scene: Scene, root: Path, scan: int = 24, crop: int = 4, s
     from eve3d.core.fileio import read_image, write_image
     from eve3d.core.io.colmap import write_colmap
 
-    folder = root / f"scan{scan}"
+    from eve3d.core.datasets import dtu_scan
+
+    scan, folder = dtu_scan(name), root / name
     scale = dtu_scale_mat()
     write_dtu_layout(scene, folder, scale, images="images")
     cropped = []
@@ -200,17 +204,20 @@ def write_mipnerf360_release(scene: Scene, root: Path, name: str = "room") -> Pa
     return folder
 
 
-STANDIN_SCENE = {"dtu": "scan24", "tnt": "Barn", "mipnerf360": "room"}
-"""The released scene each stand-in is written as (its name decides τ, the resolution, ...)."""
+def standin(benchmark: str) -> tuple[Callable[..., Path], str]:
+    """The writer of ``benchmark``'s stand-in and the released scene it writes
+    (``eve3d.core.datasets.BENCHMARKS``: its ``standin``)."""
+    from eve3d.core.datasets import BENCHMARKS
+
+    writer, name = BENCHMARKS[benchmark].standin.split(":")
+    return globals()[writer], name
 
 
 def write_standin(benchmark: str, scene: Scene, root: Path) -> Path:
     """``scene`` written under ``root`` as the download of ``benchmark`` lays out its
-    :data:`STANDIN_SCENE`; returns that scene's folder."""
-    if benchmark == "dtu":
-        return write_dtu_release(scene, root, scan=int(STANDIN_SCENE["dtu"][4:]))
-    writer = {"tnt": write_tnt_release, "mipnerf360": write_mipnerf360_release}[benchmark]
-    return writer(scene, root, STANDIN_SCENE[benchmark])
+    stand-in scene; returns that scene's folder."""
+    writer, name = standin(benchmark)
+    return writer(scene, root, name)
 
 
 def run(benchmark: str, root: Path, views: int = 49, width: int = 1600, height: int = 1200) -> None:
@@ -220,7 +227,7 @@ def run(benchmark: str, root: Path, views: int = 49, width: int = 1600, height: 
     from eve3d.core.io import load_scene
     from eve3d.synth import generate
 
-    root, name = Path(root), STANDIN_SCENE[benchmark]
+    root, name = Path(root), standin(benchmark)[1]
     if (root / name).exists():
         raise Eve3dError(f"{root / name}: already there; give an empty folder")
     with tempfile.TemporaryDirectory() as tmp:

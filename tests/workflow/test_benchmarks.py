@@ -14,7 +14,8 @@ from eve3d.core.errors import Eve3dError
 from eve3d.core.io import load_scene
 from eve3d.core.layout import EVALUATION, RECORD, TRAINING, Layout
 from eve3d.synth import generate
-from eve3d.tools.standin import STANDIN_SCENE, write_log, write_standin
+from eve3d.core.datasets import BENCHMARKS
+from eve3d.tools.standin import standin, write_log, write_standin
 from tests.helpers import TINY_START, folder_report, open_report, run_cli, snakemake
 
 BENCHMARK_SCENES = {
@@ -23,7 +24,7 @@ BENCHMARK_SCENES = {
     "tnt": ["Barn", "Caterpillar", "Courthouse", "Ignatius", "Meetingroom", "Truck"],
     "mipnerf360": ["bicycle", "flowers", "garden", "stump", "treehill", "room", "counter", "kitchen", "bonsai"],
 }
-MINIATURE = STANDIN_SCENE
+MINIATURE = {name: standin(name)[1] for name in BENCHMARKS}
 """The scene of each benchmark that the miniature download holds."""
 SHORT = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
 TINY = {"preset": "cpu", "mesh": {"coarsen": 8},

@@ -147,14 +147,14 @@ def write_ground_truth(args: tuple) -> float:
     from pathlib import Path
 
     from eve3d.core.io import load_scene
-    from eve3d.tools.standin import STANDIN_SCENE, write_dtu_release, write_tnt_release
+    from eve3d.tools.standin import standin, write_dtu_release, write_tnt_release
 
     benchmark, data, root, points = args
     scene = load_scene(Path(data))
     if benchmark == "tnt":
-        write_tnt_release(scene, Path(root), STANDIN_SCENE["tnt"], gt_points=points)
+        write_tnt_release(scene, Path(root), standin("tnt")[1], gt_points=points)
     else:
-        write_dtu_release(scene, Path(root), int(STANDIN_SCENE["dtu"][4:]), stl_points=points)
+        write_dtu_release(scene, Path(root), standin("dtu")[1], stl_points=points)
     return peak_rss_mb()
 
 
@@ -168,7 +168,7 @@ def memory_stages(work: Path, config_file: Path, kind: str, views: int, size: tu
     generated object's fused mesh against an STL of ``gt_points`` points)."""
     from eve3d.core.datasets import dtu_files
     from eve3d.core.layout import METRICS_FILE as METRICS
-    from eve3d.tools.standin import STANDIN_SCENE
+    from eve3d.tools.standin import standin
 
     cfg, w, h = ["--config", config_file], *size
     data, depth, mesh = work / kind, work / f"{kind}_depth", work / f"{kind}_mesh.ply"
@@ -187,10 +187,10 @@ def memory_stages(work: Path, config_file: Path, kind: str, views: int, size: tu
             root = work / "tnt"
             steps += [("set-up", f"tnt, {million}", write_ground_truth, ("tnt", data, root, gt_points)),
                       ("evaluate", f"tnt, {million}", [*evaluate, root / METRICS, "--protocol", "tnt", "--scene",
-                                                       root / STANDIN_SCENE["tnt"], "--mesh", mesh, *cfg], None)]
+                                                       root / standin("tnt")[1], "--mesh", mesh, *cfg], None)]
         elif protocol == "dtu":
             root, obj = work / "dtu", work / "object"
-            files = dtu_files(root, STANDIN_SCENE["dtu"])
+            files = dtu_files(root, standin("dtu")[1])
             steps += [("set-up", f"object, {DTU_VIEWS} views, exact depth at {w}x{h}", generate_with_depth,
                        ("object", obj, work / "object_depth", DTU_VIEWS, size, MEMORY_IMAGE_DIVISOR)),
                       ("mesh", f"object, {DTU_VIEWS} views {w}x{h}", ["mesh", "--scene", obj, "--depth",
@@ -198,7 +198,7 @@ def memory_stages(work: Path, config_file: Path, kind: str, views: int, size: tu
                                                                        work / "object_mesh.ply", *cfg], None),
                       ("set-up", f"dtu, {million}", write_ground_truth, ("dtu", obj, root, gt_points)),
                       ("evaluate", f"dtu, {million}", [*evaluate, root / METRICS, "--protocol", "dtu", "--scene",
-                                                       root / STANDIN_SCENE["dtu"], "--mesh", work / "object_mesh.ply",
+                                                       root / standin("dtu")[1], "--mesh", work / "object_mesh.ply",
                                                        "--gt", files["stl"], "--obs-mask", files["obs_mask"],
                                                        "--plane", files["plane"], *cfg], None)]
         else:
