@@ -77,16 +77,16 @@ def _touched(cam: Camera, depth: np.ndarray, stride: int = 2) -> np.ndarray:
     return np.concatenate(pts)
 
 
-def fused_depths(scene: Scene, depth_dir: Path, s: MeshSettings, desc: str = "", leave: bool = True):
+def fused_depths(scene: Scene, depth_dir: Path, settings: MeshSettings, desc: str = "", leave: bool = True):
     """:func:`view_depths`, only the depths within ``depth_max`` and the region of interest
     (a progress bar ``desc`` when given)."""
-    region = scene.region(s.region)
-    views = view_depths(scene, depth_dir, s.min_confidence)
+    region = scene.region(settings.region)
+    views = view_depths(scene, depth_dir, settings.min_confidence)
     if desc:
         views = tqdm(views, total=len(scene.cameras), desc=desc, unit="view", leave=leave)
     for cam, depth in views:
-        if s.depth_max:
-            depth = np.where(depth <= s.depth_max, depth, 0)
+        if settings.depth_max:
+            depth = np.where(depth <= settings.depth_max, depth, 0)
         yield cam, in_region(cam, depth, region)
 
 
@@ -94,19 +94,19 @@ def _nothing_to_fuse(depth_dir: Path) -> Eve3dError:
     return Eve3dError(f"{depth_dir}: no valid depth in any view, nothing to fuse")
 
 
-def scene_voxel(scene: Scene, depth_dir: Path, s: MeshSettings) -> float:
+def scene_voxel(scene: Scene, depth_dir: Path, settings: MeshSettings) -> float:
     """An open scene's voxel: the largest extent of the fused points (their 0.5–99.5 %
     per axis, within the region: a sky sets no size) / 2048 × ``coarsen``, from a sample of
     20–40 thousand points of each view (what this pass holds: about 1 MB a view)."""
     pts = []
-    for cam, depth in fused_depths(scene, depth_dir, s, "TSDF voxel", leave=False):
+    for cam, depth in fused_depths(scene, depth_dir, settings, "TSDF voxel", leave=False):
         sample = _touched(cam, depth, stride=4)
         pts.append(sample[:: max(1, len(sample) // 20000)].copy())  # a view would keep all of `sample`
     if not sum(map(len, pts)):
         raise _nothing_to_fuse(depth_dir)
     # one coordinate of every sample at a time: a third of them copied, not all twice
     extent = [np.subtract(*np.percentile(np.concatenate([p[:, k] for p in pts]), [99.5, 0.5])) for k in range(3)]
-    return float(np.max(extent)) / 2048 * s.coarsen
+    return float(np.max(extent)) / 2048 * settings.coarsen
 
 
 def _grid(voxel: float, blocks: int):
@@ -130,14 +130,14 @@ def _frame(cam: Camera, depth: np.ndarray):
             o3d.t.geometry.Image(o3c.Tensor(depth)))
 
 
-def _block_coords(grid, frame: tuple, s: MeshSettings, depth_max: float):
+def _block_coords(grid, frame: tuple, settings: MeshSettings, depth_max: float):
     """The blocks a view's depth (``frame``: :func:`_frame`) touches in ``grid``, or None
     when it touches none: open3d raises then (sparse or out-of-range depth), and the view
     adds nothing, as an empty one."""
     intrinsic, extrinsic, depth_img = frame
     try:
         return grid.compute_unique_block_coordinates(depth_img, intrinsic, extrinsic, 1.0, depth_max,
-                                                     trunc_voxel_multiplier=s.trunc_factor)
+                                                     trunc_voxel_multiplier=settings.trunc_factor)
     except RuntimeError as e:
         if "No block is touched" not in str(e):
             raise
@@ -161,18 +161,18 @@ class GridPlan:
     touch none are left out)."""
 
 
-def count_blocks(scene: Scene, depth_dir: Path, s: MeshSettings, voxel: float) -> GridPlan:
+def count_blocks(scene: Scene, depth_dir: Path, settings: MeshSettings, voxel: float) -> GridPlan:
     """The blocks the views touch at ``voxel``, gathered a view at a time in a hash set."""
     import open3d.core as o3c
 
-    probe, depth_max = _grid(voxel, 1), float(s.depth_max) if s.depth_max else 1e6
+    probe, depth_max = _grid(voxel, 1), float(settings.depth_max) if settings.depth_max else 1e6
     touched = o3c.HashSet(1024, o3c.int32, (3,), o3c.Device("CPU:0"))
     most, valid, reach = 0, False, {}
-    for cam, depth in fused_depths(scene, depth_dir, s, "TSDF blocks", leave=False):
+    for cam, depth in fused_depths(scene, depth_dir, settings, "TSDF blocks", leave=False):
         if not (depth > 0).any():
             continue
         valid = True
-        coords = _block_coords(probe, _frame(cam, depth), s, depth_max)
+        coords = _block_coords(probe, _frame(cam, depth), settings, depth_max)
         if coords is not None:
             touched.insert(coords)
             most = max(most, len(coords))
@@ -184,13 +184,14 @@ def count_blocks(scene: Scene, depth_dir: Path, s: MeshSettings, voxel: float) -
     return GridPlan(voxel, blocks.reshape(-1, 3), most, reach)
 
 
-def plan_grid(scene: Scene, depth_dir: Path, s: MeshSettings) -> GridPlan:
+def plan_grid(scene: Scene, depth_dir: Path, settings: MeshSettings) -> GridPlan:
     """The voxel (``mesh.voxel``, else the scene's at ``mesh.coarsen``) and the blocks the
     views touch at it. Each pass reads the depth maps one at a time."""
-    voxel = s.voxel
+    voxel = settings.voxel
     if voxel is None:
-        voxel = 0.002 * scene.object_radius * s.coarsen if scene.kind == "object" else scene_voxel(scene, depth_dir, s)
-    return count_blocks(scene, depth_dir, s, voxel)
+        voxel = (0.002 * scene.object_radius * settings.coarsen if scene.kind == "object"
+                 else scene_voxel(scene, depth_dir, settings))
+    return count_blocks(scene, depth_dir, settings, voxel)
 
 
 def slabs(plan: GridPlan, depth_dir: Path) -> tuple[int, list[tuple[int, int]]]:
@@ -248,7 +249,7 @@ def _welded(parts: list):
     return mesh
 
 
-def _integrate(vbg, cam: Camera, depth: np.ndarray, s: MeshSettings, depth_max: float, near=None) -> bool:
+def _integrate(vbg, cam: Camera, depth: np.ndarray, settings: MeshSettings, depth_max: float, near=None) -> bool:
     """Fuse one view's depth and colour into ``vbg``, only into the blocks ``near`` keeps
     (a slab and its margin) when given; False when the view touches none."""
     import open3d as o3d
@@ -257,7 +258,7 @@ def _integrate(vbg, cam: Camera, depth: np.ndarray, s: MeshSettings, depth_max: 
     if not (depth > 0).any():  # nothing of this view in the region (open3d refuses an empty view)
         return False
     frame = _frame(cam, depth)
-    coords = _block_coords(vbg, frame, s, depth_max)
+    coords = _block_coords(vbg, frame, settings, depth_max)
     if coords is not None and near is not None:
         coords = coords[o3c.Tensor(near(coords.numpy()))]
     if coords is None or not len(coords):
@@ -269,7 +270,7 @@ def _integrate(vbg, cam: Camera, depth: np.ndarray, s: MeshSettings, depth_max: 
         rgb = np.full((cam.height, cam.width, 3), 0.7, np.float32)
     color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
     vbg.integrate(coords, depth_img, color_img, intrinsic, extrinsic, 1.0, depth_max,
-                  trunc_voxel_multiplier=s.trunc_factor)
+                  trunc_voxel_multiplier=settings.trunc_factor)
     return True
 
 
@@ -281,9 +282,9 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
     the views that reach it): the same mesh, with a grid of at most TILE_BLOCKS blocks."""
     import open3d as o3d
 
-    s = settings or MeshSettings()
-    plan = plan_grid(scene, depth_dir, s)
-    voxel, depth_max = plan.voxel, float(s.depth_max) if s.depth_max else 1e6
+    settings = settings or MeshSettings()
+    plan = plan_grid(scene, depth_dir, settings)
+    voxel, depth_max = plan.voxel, float(settings.depth_max) if settings.depth_max else 1e6
     axis, ranges = slabs(plan, depth_dir) if len(plan.blocks) else (0, [])
     fused_views, parts = set(), []
     for k, (a, b) in enumerate(ranges):
@@ -293,12 +294,12 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
                 plan.reach[cam.view_id][0, axis] <= b and plan.reach[cam.view_id][1, axis] >= a - 1]
         vbg = _grid(voxel, held + min(plan.most, held))  # a view adds at most the slab's blocks
         desc = f"TSDF (voxel {voxel:.4g}, {held} blocks" + (f", slab {k + 1}/{len(ranges)})" if len(ranges) > 1 else ")")
-        for cam, depth in fused_depths(replace(scene, cameras=seen), depth_dir, s, desc, leave=len(ranges) == 1):
-            if _integrate(vbg, cam, depth, s, depth_max, near if len(ranges) > 1 else None):
+        for cam, depth in fused_depths(replace(scene, cameras=seen), depth_dir, settings, desc, leave=len(ranges) == 1):
+            if _integrate(vbg, cam, depth, settings, depth_max, near if len(ranges) > 1 else None):
                 fused_views.add(cam.view_id)
         if not vbg.hashmap().size():  # open3d cannot extract from a grid that no view reached
             continue
-        extracted = vbg.extract_triangle_mesh(weight_threshold=s.weight_threshold)
+        extracted = vbg.extract_triangle_mesh(weight_threshold=settings.weight_threshold)
         del vbg  # the grid goes before the mesh is converted (each a few GB at the DESIGN voxel on a large scene)
         piece = extracted.to_legacy()
         del extracted
@@ -316,18 +317,18 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
         mesh = parts[0] if len(parts) == 1 else _welded(parts)
         parts.clear()  # the slabs' meshes go before the mesh is reordered (a copy of it)
     fused = len(fused_views)
-    region = scene.region(s.region)
+    region = scene.region(settings.region)
     if region is not None:  # the truncation band reaches a few voxels past the fused depths
         mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(*region))
     if len(mesh.triangles) == 0:
         why = (f"too few of the {fused} views fused agree on a depth for mesh.weight_threshold "
-               f"{s.weight_threshold:g}, or it lies outside the region of interest (mesh.region)" if fused else
+               f"{settings.weight_threshold:g}, or it lies outside the region of interest (mesh.region)" if fused else
                "no view's depth reaches the grid (beyond mesh.depth_max, not finite, or too sparse)")
         raise Eve3dError(f"{depth_dir}: the depth maps fuse to no surface (an empty mesh at voxel {voxel:.4g}): {why}; "
                          f"no mesh written")
-    keep_largest = s.largest_cluster if s.largest_cluster is not None else scene.kind == "object"
+    keep_largest = settings.largest_cluster if settings.largest_cluster is not None else scene.kind == "object"
     if keep_largest:
-        mesh = keep_large_clusters(mesh, s.min_cluster_fraction)
+        mesh = keep_large_clusters(mesh, settings.min_cluster_fraction)
     return canonical_order(mesh)
 
 

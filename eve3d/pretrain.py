@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from eve3d.core.fileio import atomic_path
-from eve3d.core.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TONE_FILE, TRAIN_METRICS_FILE, TRAINING
+from eve3d.core.layout import TONE_FILE
 from eve3d.core.photos import scene_tone_curve
 from eve3d.core.scene import Scene
 from eve3d.core.settings import PretrainSettings, RenderSettings
@@ -32,7 +32,6 @@ from eve3d.core.timing import phase
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import render_model
 from eve3d.gaussians.training import LossTerms, Trainer, initial_points
-from eve3d.gaussians.view_report import view_metrics, write_previews
 from eve3d.gaussians.views import View
 
 
@@ -83,27 +82,27 @@ class PretrainRun:
 
 def setup_pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> PretrainRun:
     """The trainer with its initial Gaussians, the photometric loss and the stage's events."""
-    s = settings
     with phase("tone curve"):
-        tone = scene_tone_curve(scene, s.equalize)
-    trainer = Trainer(scene, s, Path(out_dir), "pretrain", tone)
+        tone = scene_tone_curve(scene, settings.equalize)
+    trainer = Trainer(scene, settings, Path(out_dir), "pretrain", tone)
     state, views = trainer.state, trainer.views
-    rng = np.random.default_rng(s.seed)
+    rng = np.random.default_rng(settings.seed)
     with phase("initial Gaussians"):
-        points, colors = initial_points(scene, s.init_random_points, rng, s.init_drop_isolated)
+        points, colors = initial_points(scene, settings.init_random_points, rng, settings.init_drop_isolated)
         if colors is not None:  # the sparse points' photo colours, into the curve's grey levels
             colors = tone[np.round(colors * 255).astype(np.uint8)] / 255.0
-        state.set_model(GaussianModel.from_points(points, colors, s.sh_degree, thickness=s.init_thickness))
+        state.set_model(GaussianModel.from_points(points, colors, settings.sh_degree,
+                                                  thickness=settings.init_thickness))
 
     def events(step: int) -> None:
-        if step in s.reinit_at:
-            count = s.reinit_points or len(trainer.model)
+        if step in settings.reinit_at:
+            count = settings.reinit_points or len(trainer.model)
             pts, cols = depth_points(trainer, count)
-            state.set_model(GaussianModel.from_points(pts, cols, s.sh_degree, thickness=s.init_thickness))
+            state.set_model(GaussianModel.from_points(pts, cols, settings.sh_degree, thickness=settings.init_thickness))
             print(f"\npretrain: step {step}: re-initialised {len(pts)} Gaussians from rendered depth", file=sys.stderr)
-        if step in s.simplify_at:
-            weight = blend_weights(trainer.model, [views[i] for i in views.train_ids], s)
-            keep = max(1, int(round(s.simplify_keep * len(weight))))
+        if step in settings.simplify_at:
+            weight = blend_weights(trainer.model, [views[i] for i in views.train_ids], settings)
+            keep = max(1, int(round(settings.simplify_keep * len(weight))))
             order = torch.argsort(weight, descending=True)
             drop = torch.ones(len(weight), dtype=torch.bool, device=weight.device)
             drop[order[:keep]] = False
@@ -116,28 +115,20 @@ def setup_pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> P
 
 def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     """Run the stage; returns the held-out metrics (also written to ``train_metrics.json``)."""
-    s = settings
     out_dir = Path(out_dir)
-    run = setup_pretrain(scene, out_dir, s)
+    run = setup_pretrain(scene, out_dir, settings)
     trainer, tone = run.trainer, run.tone
-    views = trainer.views
     trainer.run(run.loss, run.events)
-    model = trainer.model
-    with phase("save"):
-        model.save_ply(out_dir / MODEL_FILE)
-    with atomic_path(out_dir / TONE_FILE) as tmp:
-        tmp.write_text(json.dumps(tone.tolist()))
-    with phase("metrics"):
-        metrics = {RECORD: TRAINING, "held_out": view_metrics(model, views, views.test_ids, s),
-                   "train": view_metrics(model, views, views.train_ids, s),
-                   "gaussians": len(model), "iterations": s.iterations, "resolution": s.resolution,
-                   "settings": asdict(s)}
-    with atomic_path(out_dir / TRAIN_METRICS_FILE) as tmp:
-        tmp.write_text(json.dumps(metrics, indent=2, default=str))
-    with phase("previews"):
-        write_previews(model, views, s, s.previews, out_dir / PREVIEWS_DIR, depth="depth_expected")
-    trainer.checkpoint.remove()
-    return metrics
+
+    def save_tone() -> None:
+        with atomic_path(out_dir / TONE_FILE) as tmp:
+            tmp.write_text(json.dumps(tone.tolist()))
+
+    def record(scores: dict) -> dict:
+        return {"held_out": scores["held_out"], "train": scores["train"], "gaussians": len(trainer.model),
+                "iterations": settings.iterations, "resolution": settings.resolution, "settings": asdict(settings)}
+
+    return trainer.finish(out_dir, record, "depth_expected", save_tone)
 
 
 def run(settings: PretrainSettings, *, scene: Path, out: Path) -> None:

@@ -26,13 +26,13 @@ def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Pa
     """Reconstruct (or only undistort) ``dataset`` into ``out``; returns ``out``."""
     pycolmap = import_pycolmap()
 
-    s = settings or SfmSettings()
+    settings = settings or SfmSettings()
     image_dir = dataset / "images"
     photos = scan_photos(image_dir)
     with atomic_dir(out) as tmp:
         model = find_colmap_model(dataset)
         if model is None:
-            model = _reconstruct(photos, tmp / "work", s)
+            model = _reconstruct(photos, tmp / "work", settings)
             image_dir = tmp / "work" / "images"
         with phase("undistort"):
             pycolmap.undistort_images(str(tmp / "undistorted"), str(model), str(image_dir), output_type="COLMAP")
@@ -51,7 +51,7 @@ def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Pa
     return out
 
 
-def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
+def _reconstruct(photos: list[Path], work: Path, settings: SfmSettings) -> Path:
     """Import + SIFT + matching + incremental mapping; returns the folder of the largest
     model, whose images (``work/images``) are named as the photos' stems."""
     pycolmap = import_pycolmap()
@@ -59,23 +59,24 @@ def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
     work.mkdir(parents=True)
     image_dir = work / "by_size"
     with phase("import photos"):
-        names = import_photos(photos, image_dir, s.max_image_size)
-    pycolmap.set_random_seed(s.seed)
+        names = import_photos(photos, image_dir, settings.max_image_size)
+    pycolmap.set_random_seed(settings.seed)
     db = work / "database.db"
     reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = s.camera_model
+    reader.camera_model = settings.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
-    extraction.max_image_size = s.max_image_size
-    extraction.num_threads = s.threads
+    extraction.max_image_size = settings.max_image_size
+    extraction.num_threads = settings.threads
     with phase("features"):
         pycolmap.extract_features(str(db), str(image_dir), image_names=names,
-                                  camera_mode=pycolmap.CameraMode.PER_FOLDER if s.single_camera else pycolmap.CameraMode.AUTO,
+                                  camera_mode=(pycolmap.CameraMode.PER_FOLDER if settings.single_camera
+                                               else pycolmap.CameraMode.AUTO),
                                   reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
     with phase("matching"):
-        match_features(db, s)
+        match_features(db, settings)
     options = pycolmap.IncrementalPipelineOptions()
-    options.random_seed = s.seed
-    options.num_threads = s.threads
+    options.random_seed = settings.seed
+    options.num_threads = settings.threads
     with phase("mapping"):
         models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), options)
     if not models:
@@ -83,11 +84,11 @@ def _reconstruct(photos: list[Path], work: Path, s: SfmSettings) -> Path:
     best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())
     registered = {img.name for img in best.images.values() if img.has_pose}
     print(f"SfM registered {len(registered)} of {len(names)} images, {best.num_points3D()} points")
-    if len(registered) < s.min_registered_fraction * len(names):
+    if len(registered) < settings.min_registered_fraction * len(names):
         left_out = sorted(p.name for p, n in zip(photos, names) if n not in registered)
         raise Eve3dError(
             f"{photos[0].parent}: SfM registered {len(registered)} of {len(names)} images "
-            f"(below the required fraction {s.min_registered_fraction:g}); left out: {', '.join(left_out)}"
+            f"(below the required fraction {settings.min_registered_fraction:g}); left out: {', '.join(left_out)}"
         )
     # one flat folder, the images named as the photos' stems (the size folders only grouped the cameras)
     (work / "images").mkdir()

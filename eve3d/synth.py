@@ -401,8 +401,8 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
 
 def run(settings: SyntheticSettings, *, kind: str, out: Path, images_only: bool = False) -> None:
     """The ``synth`` stage: the generated scene ``kind``, sized by ``settings``, into ``out``."""
-    s = settings
     with phase("generate"):
-        generate(kind, Path(out), views=s.views, width=s.width, height=s.height, seed=s.seed, images_only=images_only,
-                 arc=s.arc, surface_samples=s.surface_samples)
+        generate(kind, Path(out), views=settings.views, width=settings.width, height=settings.height,
+                 seed=settings.seed, images_only=images_only,
+                 arc=settings.arc, surface_samples=settings.surface_samples)
     print(f"wrote {out}")

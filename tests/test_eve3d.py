@@ -392,7 +392,7 @@ def test_opacity_loss_lowers_the_opacity_of_every_visible_gaussian(tiny_scene, t
     assert "opacity" not in off.loss(0, view, off.trainer.render(view, 0))
     # opacity_while_densifying: the term runs to the last refinement step, not after
     short = setup_joint(tiny_scene, tmp_path / "short", joint_settings(opacity_weight=0.01, opacity_while_densifying=True))
-    stop = short.trainer.s.densify.refine_stop
+    stop = short.trainer.settings.densify.refine_stop
     out = short.trainer.render(view, stop)
     assert "opacity" in short.loss(stop - 1, view, out) and "opacity" not in short.loss(stop, view, out)
     assert "opacity" in run.loss(stop, view, out)  # without it, to the end

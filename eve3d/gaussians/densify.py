@@ -97,7 +97,7 @@ class Densifier:
     statistics per Gaussian, then clone, split, prune and opacity reset on schedule."""
 
     def __init__(self, settings: DensifySettings):
-        self.s = settings
+        self.settings = settings
 
     def init_state(self, n: int, n_views: int, device=None) -> dict[str, torch.Tensor]:
         """Accumulators, one row per Gaussian (kept in the checkpoint)."""
@@ -111,12 +111,12 @@ class Densifier:
         counts of what changed (empty when nothing did)."""
         self._accumulate(state, out, view_index)
         changed: dict[str, int] = {}
-        if step >= self.s.refine_stop:
+        if step >= self.settings.refine_stop:
             return changed
-        if step > self.s.refine_start and step % self.s.refine_every == 0:
+        if step > self.settings.refine_start and step % self.settings.refine_every == 0:
             changed = self.refine(params, optimizers, state, step, scene_scale, generator)
-        if self.s.reset_every and step % self.s.reset_every == 0:
-            reset_opacity(params, optimizers, 2 * self.s.prune_opa)
+        if self.settings.reset_every and step % self.settings.reset_every == 0:
+            reset_opacity(params, optimizers, 2 * self.settings.prune_opa)
             changed["reset"] = 1
         return changed
 
@@ -137,14 +137,14 @@ class Densifier:
         """One grow-and-prune pass with the statistics gathered so far (then cleared)."""
         count = state["count"].clamp_min(1)
         grad = state["grad2d"] / count
-        big = params["log_scales"].detach().exp().amax(-1) > self.s.grow_scale3d * scene_scale
-        split_by = state["absgrad2d"] / count if self.s.absgrad else grad
-        split_threshold = self.s.grow_absgrad2d if self.s.absgrad else self.s.grow_grad2d
-        clone = (grad > self.s.grow_grad2d) & ~big
+        big = params["log_scales"].detach().exp().amax(-1) > self.settings.grow_scale3d * scene_scale
+        split_by = state["absgrad2d"] / count if self.settings.absgrad else grad
+        split_threshold = self.settings.grow_absgrad2d if self.settings.absgrad else self.settings.grow_grad2d
+        clone = (grad > self.settings.grow_grad2d) & ~big
         splits = (split_by > split_threshold) & big
-        room = self.s.max_gaussians - len(grad)  # a clone or a split adds one Gaussian
+        room = self.settings.max_gaussians - len(grad)  # a clone or a split adds one Gaussian
         if int(clone.sum() + splits.sum()) > room:
-            excess = torch.where(big, split_by / split_threshold, grad / self.s.grow_grad2d)
+            excess = torch.where(big, split_by / split_threshold, grad / self.settings.grow_grad2d)
             excess = torch.where(clone | splits, excess, torch.zeros_like(excess))
             chosen = torch.zeros_like(clone)
             chosen[torch.argsort(excess, descending=True)[:max(room, 0)]] = True
@@ -167,13 +167,13 @@ class Densifier:
     def prune_mask(self, params: Params, state: dict, step: int, scene_scale: float) -> torch.Tensor:
         """Which Gaussians the pruning rules remove now."""
         opacity = torch.sigmoid(params["logit_opacities"].detach())
-        prune = opacity < self.s.prune_opa
-        if self.s.reset_every and step > self.s.reset_every:
-            prune |= params["log_scales"].detach().exp().amax(-1) > self.s.prune_scale3d * scene_scale
-        if self.s.prune_min_views > 0:
+        prune = opacity < self.settings.prune_opa
+        if self.settings.reset_every and step > self.settings.reset_every:
+            prune |= params["log_scales"].detach().exp().amax(-1) > self.settings.prune_scale3d * scene_scale
+        if self.settings.prune_min_views > 0:
             n_views = state["seen"].shape[1]
             old = step - state["birth"] >= 2 * n_views
-            prune |= old & (state["seen"].sum(1) < self.s.prune_min_views)
+            prune |= old & (state["seen"].sum(1) < self.settings.prune_min_views)
         return prune
 
 

@@ -31,7 +31,7 @@ class TrainState:
     """The optimised and checkpointed state of one training run (module docstring)."""
 
     def __init__(self, settings: TrainSettings, scene_scale: float, n_views: int, device: torch.device):
-        self.s, self.scene_scale, self.n_views, self.device = settings, scene_scale, n_views, device
+        self.settings, self.scene_scale, self.n_views, self.device = settings, scene_scale, n_views, device
         self.model: GaussianModel | None = None
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         self.extras: dict[str, torch.nn.Parameter] = {}
@@ -49,8 +49,8 @@ class TrainState:
     def set_model(self, model: GaussianModel) -> None:
         """Adopt ``model`` (fresh Adam states, fresh densification statistics)."""
         params = {k: torch.nn.Parameter(v) for k, v in model.to(self.device).params.items()}
-        self.model = GaussianModel(params, self.s.sh_degree)
-        lr = dataclasses.asdict(self.s.lr)
+        self.model = GaussianModel(params, self.settings.sh_degree)
+        lr = dataclasses.asdict(self.settings.lr)
         lr["means"] *= self.scene_scale
         self.optimizers = {k: adam(p, lr[k]) for k, p in params.items()}
         self.densify_stats = self.densifier.init_state(len(self.model), self.n_views, self.device)
@@ -120,7 +120,7 @@ def _load_states(optimizers: dict[str, torch.optim.Optimizer], saved: dict[str, 
 
 CHECKPOINT_PARTS: dict[str, tuple[Callable[[TrainState], Any], Callable[[TrainState, Any], None]]] = {
     # the model first: set_model starts fresh Adams and statistics, which the next parts restore
-    "params": (lambda st: _cpu(st.model.params), lambda st, v: st.set_model(GaussianModel(v, st.s.sh_degree))),
+    "params": (lambda st: _cpu(st.model.params), lambda st, v: st.set_model(GaussianModel(v, st.settings.sh_degree))),
     "optimizers": (lambda st: _states(st.optimizers), lambda st, v: _load_states(st.optimizers, v)),
     "extra": (lambda st: _cpu(st.extras), lambda st, v: _copy_into(st.extras, v)),
     "extra_optimizers": (lambda st: _states(st.extra_optimizers), lambda st, v: _load_states(st.extra_optimizers, v)),
@@ -141,7 +141,7 @@ class Checkpoint:
 
     def __init__(self, work_dir: Path, settings: TrainSettings, scene: Scene, name: str):
         self.path = Path(work_dir) / "checkpoint.pt"
-        self.s, self.scene, self.name = settings, scene, name
+        self.settings, self.scene, self.name = settings, scene, name
         self.inputs = ""
 
     def depend_on(self, digest: str) -> None:
@@ -151,7 +151,7 @@ class Checkpoint:
     def fingerprint(self) -> str:
         """What a checkpoint must match to be resumed."""
         poses = [[c.name, c.K.tolist(), c.R.tolist(), c.t.tolist()] for c in self.scene.cameras]
-        blob = json.dumps([dataclasses.asdict(self.s), poses, self.inputs], sort_keys=True, default=str)
+        blob = json.dumps([dataclasses.asdict(self.settings), poses, self.inputs], sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def save(self, state: TrainState) -> None:

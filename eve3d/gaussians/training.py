@@ -16,6 +16,7 @@ checkpointed, so a killed run that resumes from its last checkpoint continues th
 """
 from __future__ import annotations
 
+import json
 import math
 import sys
 from collections.abc import Callable
@@ -26,6 +27,8 @@ import torch
 from tqdm import tqdm
 
 from eve3d.core.errors import Eve3dError
+from eve3d.core.fileio import atomic_path
+from eve3d.core.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
 from eve3d.core.scene import Scene
 from eve3d.core.settings import TrainSettings
 from eve3d.core.timing import phase
@@ -33,6 +36,7 @@ from eve3d.gaussians.losses import psnr, rgb_loss
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import RenderOutput, render_model
 from eve3d.gaussians.train_state import Checkpoint, TrainState
+from eve3d.gaussians.view_report import view_metrics, write_previews
 from eve3d.gaussians.views import View, Views, pick_device
 
 LossTerms = Callable[[int, View, RenderOutput], dict[str, torch.Tensor]]
@@ -66,7 +70,7 @@ class Trainer:
 
     def __init__(self, scene: Scene, settings: TrainSettings, work_dir: Path, name: str,
                  tone: np.ndarray | None = None):
-        self.s, self.name = settings, name
+        self.settings, self.name = settings, name
         self.device = pick_device(settings.device)
         with phase("read photos"):
             self.views = Views.load(scene, settings, settings.holdout, self.device, tone)
@@ -85,21 +89,21 @@ class Trainer:
 
     def means_lr(self, step: int) -> float:
         """Exponential decay from ``lr.means`` to ``lr.means_final`` (× scene scale)."""
-        t = min(step / max(self.s.iterations, 1), 1.0)
-        lr0, lr1 = self.s.lr.means, self.s.lr.means_final
+        t = min(step / max(self.settings.iterations, 1), 1.0)
+        lr0, lr1 = self.settings.lr.means, self.settings.lr.means_final
         return self.state.scene_scale * math.exp((1 - t) * math.log(lr0) + t * math.log(lr1))
 
     def sh_degree(self, step: int) -> int:
         """SH degree in use at ``step``: one more every ``sh_degree_interval`` steps."""
-        return min(self.s.sh_degree, step // max(self.s.sh_degree_interval, 1))
+        return min(self.settings.sh_degree, step // max(self.settings.sh_degree_interval, 1))
 
     def render(self, view: View, step: int | None = None, **kw) -> RenderOutput:
         """The current model from a training view, with the SH degree of ``step`` (default: all)."""
-        return render_model(self.model, view.cam, self.s, None if step is None else self.sh_degree(step), **kw)
+        return render_model(self.model, view.cam, self.settings, None if step is None else self.sh_degree(step), **kw)
 
     def photometric_terms(self, step: int, view: View, out: RenderOutput) -> dict[str, torch.Tensor]:
         """The loss of a photometric-only stage: L_rgb."""
-        return {"rgb": rgb_loss(out.rgb, view.image, self.s.ssim_weight)}
+        return {"rgb": rgb_loss(out.rgb, view.image, self.settings.ssim_weight)}
 
     def next_view(self) -> View:
         """Training views in a fresh seeded permutation per pass."""
@@ -117,8 +121,8 @@ class Trainer:
         ``until``: stop earlier, after that many steps (a benchmark's window of steps)."""
         st = self.state
         self.checkpoint.resume(st)
-        end = self.s.iterations if until is None else min(until, self.s.iterations)
-        progress = _Progress(self.name, self.s.iterations, st.step)
+        end = self.settings.iterations if until is None else min(until, self.settings.iterations)
+        progress = _Progress(self.name, self.settings.iterations, st.step)
         with phase("steps"):
             self._loop(loss_terms, events, end, progress)
         progress.close()
@@ -131,12 +135,13 @@ class Trainer:
             step = st.step
             st.set_means_lr(self.means_lr(step))
             view = self.next_view()
-            out = self.render(view, step, absgrad=self.s.densify.absgrad)
+            out = self.render(view, step, absgrad=self.settings.densify.absgrad)
             terms = loss_terms(step, view, out)
             loss = sum(terms.values())
             if not torch.isfinite(loss):
                 bad = [k for k, v in terms.items() if not torch.isfinite(v)]
-                stage = self.name if self.name == self.s.SECTION else f"{self.s.SECTION} ({self.name})"  # joint (pgsr)
+                section = self.settings.SECTION
+                stage = self.name if self.name == section else f"{section} ({self.name})"  # joint (pgsr)
                 progress.close()  # the error starts on a line of its own, not after the bar
                 raise NonFiniteLoss(
                     f"{stage}: loss term {', '.join(bad) or 'total'} is not finite at iteration {step}; "
@@ -149,9 +154,32 @@ class Trainer:
                 if events is not None:
                     events(st.step)
             progress.update(st.step, float(loss.detach()), psnr(out.rgb.clamp(0, 1), view.image), len(self.model))
-            if self.s.checkpoint_every and st.step % self.s.checkpoint_every == 0 and st.step < self.s.iterations:
+            every = self.settings.checkpoint_every
+            if every and st.step % every == 0 and st.step < self.settings.iterations:
                 with phase("checkpoints"):
                     self.checkpoint.save(st)
+
+    def finish(self, out_dir: Path, record: Callable[[dict], dict], depth: str,
+               beside_model: Callable[[], None] = lambda: None) -> dict:
+        """The end of a training stage: the model saved (``point_cloud.ply``), then
+        ``beside_model`` (what else the stage writes from it), the PSNR and SSIM of the
+        training and held-out views in ``train_metrics.json`` (its fields as ``record``
+        arranges them, given ``train`` and ``held_out``), previews with the ``depth`` output,
+        and the checkpoint removed. Returns the metrics."""
+        model, views = self.model, self.views
+        with phase("save"):
+            model.save_ply(out_dir / MODEL_FILE)
+        beside_model()
+        with phase("metrics"):
+            scores = {"train": view_metrics(model, views, views.train_ids, self.settings),
+                      "held_out": view_metrics(model, views, views.test_ids, self.settings)}
+            metrics = {RECORD: TRAINING, **record(scores)}
+        with atomic_path(out_dir / TRAIN_METRICS_FILE) as tmp:
+            tmp.write_text(json.dumps(metrics, indent=2, default=str))
+        with phase("previews"):
+            write_previews(model, views, self.settings, self.settings.previews, out_dir / PREVIEWS_DIR, depth=depth)
+        self.checkpoint.remove()
+        return metrics
 
 
 class _Progress:

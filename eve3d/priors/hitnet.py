@@ -32,7 +32,7 @@ class HitnetStereo:
     """``matcher(left, right, (min, max))`` for :func:`eve3d.stereo.stereo_priors`."""
 
     def __init__(self, settings: HitnetSettings):
-        self.s = settings
+        self.settings = settings
         if not settings.model:
             raise Eve3dError(f"--backend hitnet needs the model file: set stereo.hitnet.model (--set "
                              f"stereo.hitnet.model=PATH/hitnet_eth3d_480x640.onnx). {WHERE}")
@@ -74,15 +74,16 @@ class HitnetStereo:
         width (``max_disparity`` at its size bounds what it handles)."""
         shift = max(int(np.floor(search[0])), 0)
         width = (search[1] - shift) * self.size[1] / left.shape[1]
-        if width > self.s.max_disparity and not self.warned:
+        if width > self.settings.max_disparity and not self.warned:
             self.warned = True
             warn(f"{self.path.name}: a pair's disparities reach {width:.0f} px at the model's width of {self.size[1]} px, "
-                 f"beyond the {self.s.max_disparity:g} px it handles (stereo.hitnet.max_disparity): the nearest surfaces "
+                 f"beyond the {self.settings.max_disparity:g} px it handles (stereo.hitnet.max_disparity): the nearest "
+                 f"surfaces "
                  f"may get no depth; an export of a smaller size, or a smaller stereo.target_disparity, narrows it")
         right = np.pad(right, ((0, 0), (shift, 0)) + ((0, 0),) * (right.ndim - 2))[:, :right.shape[1]]
         disp_l = self.disparity(left, right)
         disp_r = mirrored(self.disparity, left, right)
-        ok = left_right_consistent(np.maximum(disp_l, 0), np.maximum(disp_r, 0), self.s.lr_threshold)
+        ok = left_right_consistent(np.maximum(disp_l, 0), np.maximum(disp_r, 0), self.settings.lr_threshold)
         disp = np.where(disp_l > 0, disp_l + shift, 0).astype(np.float32)
         return disp, ok.astype(np.float32)
 

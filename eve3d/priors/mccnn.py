@@ -64,9 +64,9 @@ class MccnnStereo:
     """``matcher(left, right, (min, max))`` for :func:`eve3d.stereo.stereo_priors`."""
 
     def __init__(self, settings: MccnnSettings | None = None, min_texture: float = 0.0, texture_window: int = 5):
-        self.s = settings or MccnnSettings()
+        self.settings = settings or MccnnSettings()
         self.texture_window = texture_window
-        self.weights = Path(self.s.weights) if self.s.weights else packaged_weights()
+        self.weights = Path(self.settings.weights) if self.settings.weights else packaged_weights()
         self.net = load_network(self.weights)
         self.min_texture = min_texture
 
@@ -106,8 +106,9 @@ class MccnnStereo:
         low, high = max(int(np.floor(search[0])), 0), int(np.ceil(search[1]))
         cost_l, cost_r = self.costs(left, right, low, high)
         # both ≥ low ≥ 0: no negative disparity to clear
-        disp_l, disp_r = (winner(semi_global(c, self.s.p1, self.s.p2)) + np.float32(low) for c in (cost_l, cost_r))
-        ok = left_right_consistent(disp_l, disp_r, self.s.lr_threshold)
+        disp_l, disp_r = (winner(semi_global(c, self.settings.p1,
+                                             self.settings.p2)) + np.float32(low) for c in (cost_l, cost_r))
+        ok = left_right_consistent(disp_l, disp_r, self.settings.lr_threshold)
         ok &= local_std(left, self.texture_window) >= self.min_texture
         return disp_l, ok.astype(np.float32)
 

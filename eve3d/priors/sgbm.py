@@ -10,14 +10,14 @@ from eve3d.core.settings_fields import pick
 from eve3d.priors.matching import left_right_consistent, local_std
 
 
-def _matcher(min_disparity: int, num_disparities: int, s: SgbmSettings):
+def _matcher(min_disparity: int, num_disparities: int, settings: SgbmSettings):
     import cv2
 
-    b = s.block_size
+    b = settings.block_size
     return cv2.StereoSGBM_create(minDisparity=min_disparity, numDisparities=num_disparities, blockSize=b, P1=8 * 3 * b * b,
-                                 P2=32 * 3 * b * b, disp12MaxDiff=-1, uniquenessRatio=s.uniqueness,
-                                 speckleWindowSize=s.speckle_window, speckleRange=s.speckle_range,
-                                 mode=getattr(cv2, SGM_MODES[s.sgm_mode]))
+                                 P2=32 * 3 * b * b, disp12MaxDiff=-1, uniquenessRatio=settings.uniqueness,
+                                 speckleWindowSize=settings.speckle_window, speckleRange=settings.speckle_range,
+                                 mode=getattr(cv2, SGM_MODES[settings.sgm_mode]))
 
 
 def _right_matcher(sgbm):
@@ -67,11 +67,11 @@ class SgbmStereo:
     range searched from its start to at least its end."""
 
     def __init__(self, settings: SgbmSettings | None = None):
-        self.s = settings or SgbmSettings()
+        self.settings = settings or SgbmSettings()
 
     def __call__(self, left: np.ndarray, right: np.ndarray, search: tuple[float, float]
                  ) -> tuple[np.ndarray, np.ndarray]:
-        return sgbm_disparity(left, right, search[1], self.s, search[0])
+        return sgbm_disparity(left, right, search[1], self.settings, search[0])
 
 
 def matcher(settings: StereoSettings) -> SgbmStereo:

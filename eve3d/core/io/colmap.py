@@ -293,16 +293,16 @@ def write_colmap(scene: Scene, out_dir: Path, binary: bool = True) -> None:
     (rec.write_binary if binary else rec.write_text)(str(out_dir))
 
 
-def match_features(db_path: Path, s: SfmSettings) -> None:
+def match_features(db_path: Path, settings: SfmSettings) -> None:
     """Match the features in the database ``db_path`` (``s.matcher``) and verify each pair's
     two-view geometry (at most ``s.ransac_trials`` RANSAC trials), on ``s.threads`` threads."""
     pycolmap = import_pycolmap()
 
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = s.threads
+    matching.num_threads = settings.threads
     verification = pycolmap.TwoViewGeometryOptions()
-    verification.ransac.max_num_trials = s.ransac_trials
-    match = pycolmap.match_exhaustive if s.matcher == "exhaustive" else pycolmap.match_sequential
+    verification.ransac.max_num_trials = settings.ransac_trials
+    match = pycolmap.match_exhaustive if settings.matcher == "exhaustive" else pycolmap.match_sequential
     match(str(db_path), matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
 
 

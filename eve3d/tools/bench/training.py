@@ -250,7 +250,7 @@ def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], Non
     done = st.step - start - warmup
     if done != steps:
         raise Eve3dError(f"{trainer.name}: ran {done} of {steps} timed steps (the schedule has "
-                         f"{trainer.s.iterations} iterations; start {start}, warm-up {warmup})")
+                         f"{trainer.settings.iterations} iterations; start {start}, warm-up {warmup})")
     parts = {k: 1e3 * v / steps for k, v in profiler.seconds.items()}
     parts["other"] = 1e3 * wall / steps - sum(parts.values())
     ticks[-1] = ticks[0] + wall  # from one optimiser step to the next: one step each
