@@ -311,7 +311,8 @@ class JointSettings(TrainSettings):
     """Methods with priors: the opacity loss spares the Gaussians whose centre lies within this
     relative depth of the confident prior at its pixel (on a measured surface), so it lowers
     only the others: floaters, and the Gaussians behind a surface or inside an object that
-    would show through a surface it made semi-transparent. 0 = spares none."""
+    would show through a surface it made semi-transparent. 0 = spares none. Experimental: no
+    method, preset or config turns it on (docs/results.md, "Sparing the measured surface")."""
     dn_weight: float = setting(0.015, ge=0)
     """Weight of the depth–normal consistency loss (PGSR)."""
     dn_from: int = setting(7000, ge=0)
