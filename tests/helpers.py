@@ -80,6 +80,68 @@ def joint_settings(**kw):
     return JointSettings(**base)
 
 
+# -- multi-view geometry: a textured plane ------------------------------------------------
+
+def plane_views(tilt: float = 0.0, xs: tuple[float, ...] = (0.0, 0.3)):
+    """Views at x = ``xs`` of a textured plane 3 units ahead (tilted about y by ``tilt``
+    rad), with the first (reference) view's exact depth: ``(list[View], depth)``."""
+    import torch
+
+    from eve3d.core.scene import Camera
+    from eve3d.gaussians.render.projection import CameraTensors
+    from eve3d.gaussians.views import View
+
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    n = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])  # faces the cameras
+    views, depth_ref = [], None
+    for i, x in enumerate(xs):
+        cam = Camera(f"{i}.png", 64, 48, K, np.eye(3), np.array([-x, 0.0, 0.0]))
+        ct = CameraTensors.from_camera(cam, torch.float64)
+        rays = ct.rays().numpy()
+        centre = np.array([x, 0.0, 0.0])
+        # plane n·X = −3 (X world); ray X = c + s·r: s = (−3 − n·c) / (n·r)
+        s = (-3 - centre @ n) / (rays @ n)
+        p = centre + rays * s[..., None]
+        tex = 0.5 + 0.25 * np.sin(7 * p[..., 0]) * np.cos(5 * p[..., 1]) + 0.2 * np.sin(11 * p[..., 0] + 3 * p[..., 1])
+        image = torch.tensor(np.repeat(tex[..., None], 3, -1))
+        views.append(View(i, cam, ct, image))
+        if i == 0:
+            depth_ref = torch.tensor(s)  # z of the reference camera (R = I)
+    return views, depth_ref
+
+
+def plane_view_pair(tilt: float = 0.0):
+    """Two views 0.3 apart along x of the plane of :func:`plane_views`: reference, neighbour, depth."""
+    (ref, nbr), depth = plane_views(tilt)
+    return ref, nbr, depth
+
+
+def plane_seen_twice():
+    """A textured plane z = 3 seen by two cameras; exact depth, normal, distance, images."""
+    import torch
+
+    from eve3d.core.scene import Camera
+    from eve3d.gaussians.render.projection import CameraTensors
+
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    ry = np.radians(8)
+    R2 = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
+    cams = [Camera("a.png", 64, 48, K, np.eye(3), np.zeros(3)),
+            Camera("b.png", 64, 48, K, R2, np.array([-0.4, 0.05, 0.0]))]
+    out = []
+    for cam in cams:
+        rays = cam.pixel_rays()
+        c = cam.center
+        s = (3.0 - c[2]) / rays[..., 2]
+        p = c + rays * s[..., None]
+        tex = 0.5 + 0.25 * np.sin(3 * p[..., 0]) * np.cos(2 * p[..., 1]) + 0.2 * np.sin(5 * p[..., 0] + 1.3 * p[..., 1])
+        depth = (p @ cam.R.T + cam.t)[..., 2]
+        out.append((CameraTensors.from_camera(cam, torch.float64), torch.tensor(depth),
+                    torch.tensor(np.repeat(tex[..., None], 3, -1))))
+    normal_a = torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64).expand(48, 64, 3)
+    return out, normal_a, torch.full((48, 64), 3.0, dtype=torch.float64)
+
+
 # -- stereo ----------------------------------------------------------------------------------
 
 HITNET_DIRS = [Path(d) for d in (os.environ.get("EVE3D_HITNET_DIR"), Path.home() / ".cache/eve3d/hitnet",
