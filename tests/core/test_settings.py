@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings
+from eve3d.core.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, SgbmSettings,
+                                 StereoSettings)
 from eve3d.core.settings_fields import from_mapping, pick
 from tests.helpers import REPO, SNAKEFILE
 
@@ -189,3 +190,8 @@ def test_the_workflow_passes_each_job_its_sections_as_one_argument(tmp_path):
         assert set(flags) <= {"--config", "--scene", "--out", "--model", "--depth", "--mesh", "--gt", "--gt-mesh",
                               "--stereo", "--priors", "--method", "--backend", "--protocol", "--exact-depth",
                               "--scene-name", "--kind", "--results", "--dataset"}, line
+
+
+def test_sgbm_mode_out_of_range_is_named():
+    with pytest.raises(Eve3dError, match="stereo.sgm_mode"):
+        SgbmSettings(sgm_mode="fast")

@@ -284,14 +284,3 @@ def test_protocols_score_the_same_a_chunk_at_a_time(tiny_scene, tmp_path, monkey
     for key in ("transformation", "alignment_rmse"):
         assert np.allclose(chunked["tnt"].pop(key), whole["tnt"].pop(key), rtol=0, atol=1e-9), key
     assert chunked == whole
-
-
-def test_median_without_a_float64_copy_is_numpys():
-    """depth_accuracy's median of float32 errors equals np.median of their float64 copy."""
-    from eve3d.evaluate.depth import median
-
-    rng = np.random.default_rng(0)
-    for n in (1, 2, 7, 10_000, 10_001):
-        x = (rng.normal(size=n) * 1e-3).astype(np.float32)
-        assert median(x) == float(np.median(x.astype(np.float64)))
-    assert np.isnan(median(np.array([1.0, np.nan], np.float32)))
