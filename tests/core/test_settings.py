@@ -4,12 +4,13 @@ import dataclasses
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import yaml
 
 from eve3d.core.scene import Eve3dError
-from eve3d.core.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings, SgbmSettings,
-                                 StereoSettings)
+from eve3d.core.settings import (SECTIONS, BaselineSettings, JointSettings, MeshSettings, PretrainSettings,
+                                 RenderSettings, SgbmSettings, StereoSettings)
 from eve3d.core.settings_fields import from_mapping, pick
 from tests.helpers import REPO, SNAKEFILE
 
@@ -195,3 +196,12 @@ def test_the_workflow_passes_each_job_its_sections_as_one_argument(tmp_path):
 def test_sgbm_mode_out_of_range_is_named():
     with pytest.raises(Eve3dError, match="stereo.sgm_mode"):
         SgbmSettings(sgm_mode="fast")
+
+
+def test_training_size_is_capped_by_the_longest_side():
+    from eve3d.core.scene import Camera
+
+    cam = Camera("v.png", 4032, 3024, np.eye(3), np.eye(3), np.zeros(3))
+    assert RenderSettings(max_side=512).scale(cam) == pytest.approx(512 / 4032)
+    assert RenderSettings(resolution=0.1, max_side=512).scale(cam) == pytest.approx(0.1)
+    assert RenderSettings(resolution=0.75, max_side=0).scale(cam) == 0.75
