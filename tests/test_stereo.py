@@ -54,13 +54,6 @@ def test_sgbm_priors_match_the_photo_through_the_pretrains_tone_curve(tmp_path):
         sgbm_priors(scene, tmp_path / "stereo", tmp_path / "bad", preview=False)
 
 
-def test_pretrain_equalize_out_of_range_is_named():
-    from eve3d.core.settings import PretrainSettings
-
-    with pytest.raises(Eve3dError, match="pretrain.equalize"):
-        PretrainSettings(equalize=0.5)
-
-
 def test_sgbm_priors_write_depth_fx_b_over_d(tmp_path):
     scene, write_pairs = stereo_scene(tmp_path, 10)
     with pytest.raises(Eve3dError, match="pairs.json: missing"):

@@ -8,7 +8,7 @@ import pytest
 from eve3d.core.fileio import read_mesh
 from eve3d.core.io import load_scene
 from eve3d.core.raycast import MeshRaycaster, seen_counts
-from eve3d.core.scene import Camera, Eve3dError, Scene
+from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import EvalSettings
 from eve3d.evaluate import PROTOCOLS, EvalInputs
 from eve3d.evaluate.common import distance_metrics, hot_r, mesh_distances
@@ -222,26 +222,6 @@ def test_dtu_protocol_on_the_ground_truth(object_scene, tmp_path):
     # Horizontal surfaces move by the full 1 mm, vertical ones along themselves: the accuracy
     # grows by a large part of the shift and never by more than the shift.
     assert exact["accuracy"] + 0.3 < moved["accuracy"] < exact["accuracy"] + 1.0
-
-
-def test_protocol_defaults_and_requirements_are_named(tmp_path, object_dataset):
-    from eve3d.config import scene_protocol
-
-    assert scene_protocol("a", {"synthetic": {"kind": "object"}}).name == "synthetic"
-    assert scene_protocol("a", {"path": str(object_dataset), "protocol": "nvs"}).name == "nvs"
-    with pytest.raises(Eve3dError, match=r"scenes.a.protocol: unknown protocol 'chamfer'"):
-        scene_protocol("a", {"path": str(object_dataset), "protocol": "chamfer"})
-    # no ground truth of the format's protocol: held-out views; a protocol named without it: refused
-    assert scene_protocol("b", {"path": str(object_dataset)}).name == "nvs"
-    assert scene_protocol("b", {"path": str(object_dataset), "gt_mesh": "gt.ply"}).name == "synthetic"
-    with pytest.raises(Eve3dError, match=r"scenes.b \(protocol synthetic\): give gt_mesh"):
-        scene_protocol("b", {"path": str(object_dataset), "protocol": "synthetic"})
-    with pytest.raises(Eve3dError, match=r"scenes.c \(protocol dtu\): .* is a colmap dataset, the protocol scores dtu"):
-        scene_protocol("c", {"path": str(object_dataset), "protocol": "dtu"})
-    with pytest.raises(Eve3dError, match="the protocol scores tnt datasets"):
-        scene_protocol("d", {"path": str(object_dataset), "protocol": "tnt"})
-    with pytest.raises(Eve3dError, match="has no poses, and SfM would pose it in a frame of its own"):
-        scene_protocol("e", {"path": str(object_dataset / "images"), "gt_mesh": "gt.ply"})
 
 
 def test_protocols_score_the_same_a_chunk_at_a_time(tiny_scene, tmp_path, monkeypatch):

@@ -4,6 +4,8 @@ import json
 import math
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,7 @@ from eve3d.core.layout import EVALUATION, HELD_OUT_DIR, MESH_VIEWS_DIR, PRETRAIN
 from eve3d.synth import generate
 from eve3d.tools.profile import log_jobs, read_run
 from eve3d.tools.standin import dtu_scale_mat, write_dtu_layout
-from tests.helpers import REPO, run_cli, snakemake, write_config
+from tests.helpers import REPO, SNAKEFILE, run_cli, snakemake, write_config
 
 # -- what each rule writes ---------------------------------------------------------------------
 
@@ -536,3 +538,54 @@ def test_photos_and_their_path_run_to_meshes_and_held_out_scores(object_photos, 
     assert not layout.method("mine", "oracle").exists() and not layout.method("mine", "stereo-tsdf").exists()
     assert json.loads(layout.train_metrics("mine", PRETRAIN).read_text())["held_out"]["views"] == 2
     assert (layout.sfm("mine") / "images_2").is_dir()
+
+
+def test_the_workflow_passes_each_job_its_sections_as_one_argument(tmp_path):
+    """Every eve3d job of the default workflow gets its settings as one inline --config with
+    `preset: null` and the resolved sections; no settings flag is written by hand."""
+    import json
+    import shlex
+
+    r = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), "-n", "-p", "--config",
+                        f"results={tmp_path / 'results'}"], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr[-3000:]
+    commands = [line for line in r.stdout.splitlines() if " -m eve3d " in line and " summary " not in line]
+    assert len(commands) >= 10
+    reads = {"synth": {"synthetic"}, "stereo-depth": {"stereo"}, "stereo-render": {"stereo", "pretrain"},
+             "pretrain": {"train", "pretrain"}, "joint": {"train", "joint"}, "mesh": {"mesh"},
+             "evaluate": {"evaluate", "mesh"}, "report": {"stereo"}}
+    for line in commands:
+        argv = shlex.split(line.split(" -m eve3d ", 1)[1].split(" > ")[0])
+        assert argv.count("--config") == 1, line
+        job = json.loads(argv[argv.index("--config") + 1])
+        assert job.pop("preset", "missing") is None and set(job) - {"variants"} == reads[argv[0]], line
+        flags = [x for x in argv if x.startswith("--")]
+        assert set(flags) <= {"--config", "--scene", "--out", "--model", "--depth", "--mesh", "--gt", "--gt-mesh",
+                              "--stereo", "--priors", "--method", "--backend", "--protocol", "--exact-depth",
+                              "--scene-name", "--kind", "--results", "--dataset"}, line
+
+
+def test_unknown_method_in_config_is_named_before_any_job(tmp_path):
+    cfg = write_config(tmp_path, methods=["oracle", "eve3dd"])
+    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode != 0 and "unknown method(s) eve3dd" in r.stdout + r.stderr
+
+
+def test_a_config_variant_gets_its_own_jobs(tmp_path):
+    cfg = write_config(tmp_path, methods=["pgsr", "pgsr-flat"], variants={"pgsr-flat": {"method": "pgsr", "dn_weight": 0}})
+    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config", "-p")
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout + r.stderr
+    assert "tiny/pgsr-flat/point_cloud.ply" in out and "tiny/pgsr/point_cloud.ply" in out
+    assert "--method pgsr-flat" in out and '"pgsr-flat": {"dn_weight": 0, "method": "pgsr"}' in out
+
+
+def test_a_prior_method_depends_on_the_stereo_priors_in_the_workflow(tmp_path):
+    cfg = write_config(tmp_path, methods=["pgsr", "eve3d", "eve3d-fast"], stereo={"backend": "sgbm"})
+    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config", "-p")
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout + r.stderr
+    assert "rule stereo_depth" in out and f"--priors {tmp_path}/results/tiny/priors/sgbm" in out
+    assert out.count("--priors") == 2  # eve3d and eve3d-fast, not pgsr
+    # the cpu preset's eve3d-fast schedule reaches the job
+    assert '"eve3d-fast": {"densify": {"refine_stop": 600}, "dn_from": 250' in out
