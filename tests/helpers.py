@@ -158,6 +158,21 @@ def plane_seen_twice():
     return out, normal_a, torch.full((48, 64), 3.0, dtype=torch.float64)
 
 
+# -- meshes --------------------------------------------------------------------------------
+
+def split_long_edges(tri: np.ndarray, max_edge: float) -> np.ndarray:
+    """Triangles (T,3,3) halved across their longest edge until no edge exceeds ``max_edge``."""
+    while True:
+        edges = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=-1)  # edge k: vertex k → k+1
+        long = edges.max(axis=1) > max_edge
+        if not long.any():
+            return tri
+        t, k = tri[long], edges[long].argmax(axis=1)
+        a, b, c = (t[np.arange(len(t)), (k + j) % 3] for j in range(3))
+        m = (a + b) / 2
+        tri = np.concatenate([tri[~long], np.stack([a, m, c], 1), np.stack([m, b, c], 1)])
+
+
 # -- stereo ----------------------------------------------------------------------------------
 
 HITNET_DIRS = [Path(d) for d in (os.environ.get("EVE3D_HITNET_DIR"), Path.home() / ".cache/eve3d/hitnet",

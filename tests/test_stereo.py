@@ -1,10 +1,10 @@
-"""Virtual stereo: right cameras and views, the confidence checks every backend passes through, depth from disparity."""
+"""eve3d.stereo: right cameras and views, the confidence checks every backend passes through, depth from disparity."""
 import json
 
 import numpy as np
 import pytest
 
-from eve3d.core.maps import load_maps, preview_image
+from eve3d.core.maps import load_maps
 from eve3d.core.scene import Camera, Eve3dError, Scene
 from eve3d.core.settings import BaselineSettings, MatchCheck
 from tests.helpers import dim, sgbm_priors, shifted_pair, stereo_scene
@@ -181,16 +181,3 @@ def test_neighbour_photos_agree_with_the_exact_depth_and_not_with_a_wrong_one(ob
     agree = lambda d: ((neighbour_ncc(cams[i], photo, d, others) >= 0.5).sum(0) >= 2)[textured].mean()  # noqa: E731
     assert agree(depth) > 0.85  # measured 0.92
     assert agree(1.08 * depth) < 0.45  # measured 0.35
-
-
-def test_depth_preview_shows_only_confident_depth():
-    """A matcher that keeps a guess where it is not confident (mccnn, a network): the preview
-    leaves those pixels black, and a far wrong guess does not flatten the others' colours."""
-    depth = np.tile(np.linspace(2.0, 3.0, 40, dtype=np.float32), (10, 1))
-    depth[:, :5] = 80.0  # rejected guesses
-    confidence = np.ones_like(depth)
-    confidence[:, :5] = 0
-    shown = preview_image("depth", depth, confidence)
-    assert not shown[:, :5].any()
-    assert np.ptp(shown[:, 5:].astype(int), axis=1).max() > 100  # 2 → 3 still spans the colour map
-    assert preview_image("depth", depth)[:, :5].any()  # without a confidence every depth shows
