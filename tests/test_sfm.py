@@ -36,26 +36,6 @@ def test_sfm_registers_every_view_and_recovers_the_poses(tmp_path):
     assert err.max() < 0.01
 
 
-def test_generated_scenes_start_from_points_sfm_triangulates(object_dataset):
-    """A generated scene's sparse points are what a user's SfM gives with known poses
-    (features matched and triangulated by pycolmap), not samples of the GT surface: most lie
-    on the surface, some do not, every point is seen by two views or more and projects
-    near its features, and the poses are the generator's, untouched."""
-    import open3d as o3d
-
-    scene = load_scene(object_dataset)
-    gt = o3d.t.geometry.RaycastingScene()
-    gt.add_triangles(o3d.t.io.read_triangle_mesh(str(object_dataset / "gt" / "mesh.ply")))
-    distance = gt.compute_distance(o3d.core.Tensor(scene.points.astype(np.float32))).numpy()
-    print(f"{len(scene.points)} points; distance to the GT surface: median {np.median(distance):.4f}, "
-          f"within 1 cm {np.mean(distance < 0.01):.2f}, beyond 10 cm {np.mean(distance > 0.1):.2f}")
-    assert len(scene.points) > 1000
-    assert np.median(distance) < 0.01 and 0.5 < np.mean(distance < 0.01) < 0.95  # outliers and all
-    assert all(len(v) >= 2 for v in scene.point_views)
-    colmap = read_colmap(object_dataset / "sparse" / "0", object_dataset / "images")
-    assert [c.center.round(9).tolist() for c in colmap.cameras] == [c.center.round(9).tolist() for c in scene.cameras]
-
-
 def camera_centres(scene) -> dict[str, np.ndarray]:
     return {c.view_id: c.center for c in scene.cameras}
 

@@ -1,6 +1,8 @@
 """eve3d.synth: the generated scenes (photos, cameras, sparse points and GT mesh agree; the kinds)."""
 import numpy as np
 
+from eve3d.core.io import load_scene
+from eve3d.core.io.colmap import read_colmap
 from eve3d.core.raycast import MeshRaycaster
 from eve3d.priors.matching import local_std
 
@@ -34,3 +36,23 @@ def test_dark_room_is_the_inside_room_darker_and_flatter(tmp_path):
     assert dark[walls].mean() < 0.4 * bright[walls].mean()
     spread = lambda im: np.median(np.stack([local_std(v, 5) for v in im])[walls])  # noqa: E731
     assert spread(dark) < 0.4 * spread(bright)
+
+
+def test_generated_scenes_start_from_points_sfm_triangulates(object_dataset):
+    """A generated scene's sparse points are what a user's SfM gives with known poses
+    (features matched and triangulated by pycolmap), not samples of the GT surface: most lie
+    on the surface, some do not, every point is seen by two views or more and projects
+    near its features, and the poses are the generator's, untouched."""
+    import open3d as o3d
+
+    scene = load_scene(object_dataset)
+    gt = o3d.t.geometry.RaycastingScene()
+    gt.add_triangles(o3d.t.io.read_triangle_mesh(str(object_dataset / "gt" / "mesh.ply")))
+    distance = gt.compute_distance(o3d.core.Tensor(scene.points.astype(np.float32))).numpy()
+    print(f"{len(scene.points)} points; distance to the GT surface: median {np.median(distance):.4f}, "
+          f"within 1 cm {np.mean(distance < 0.01):.2f}, beyond 10 cm {np.mean(distance > 0.1):.2f}")
+    assert len(scene.points) > 1000
+    assert np.median(distance) < 0.01 and 0.5 < np.mean(distance < 0.01) < 0.95  # outliers and all
+    assert all(len(v) >= 2 for v in scene.point_views)
+    colmap = read_colmap(object_dataset / "sparse" / "0", object_dataset / "images")
+    assert [c.center.round(9).tolist() for c in colmap.cameras] == [c.center.round(9).tolist() for c in scene.cameras]
