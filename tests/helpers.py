@@ -173,6 +173,25 @@ def split_long_edges(tri: np.ndarray, max_edge: float) -> np.ndarray:
         tri = np.concatenate([tri[~long], np.stack([a, m, c], 1), np.stack([m, b, c], 1)])
 
 
+def tilted_plane(path: Path | None = None):
+    """A camera at the origin (fx = fy = 50, 40×30, looking down +z) and a quad of the plane
+    z = 2 + x/2 that covers the left half of its image (x ≤ 0), written to ``path`` when given.
+    Returns the camera, the mesh and the plane's exact depth per pixel (the right half: 0)."""
+    import open3d as o3d
+
+    from eve3d.core.scene import Camera
+
+    cam = Camera("v.png", 40, 30, np.array([[50.0, 0, 20], [0, 50, 15], [0, 0, 1]]), np.eye(3), np.zeros(3))
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector([[-3, -3, 0.5], [0, -3, 2], [0, 3, 2], [-3, 3, 0.5]]),
+                                     o3d.utility.Vector3iVector([[0, 1, 2], [0, 2, 3]]))
+    if path is not None:
+        o3d.io.write_triangle_mesh(str(path), mesh)
+    u = np.arange(40) + 0.5
+    dx = (u - 20) / 50  # the ray (dx, dy, 1) meets z = 2 + x/2 at z = 2 / (1 - dx/2)
+    depth = np.where(dx < 0, 2 / (1 - dx / 2), 0.0)
+    return cam, mesh, np.tile(depth, (30, 1))
+
+
 # -- stereo ----------------------------------------------------------------------------------
 
 HITNET_DIRS = [Path(d) for d in (os.environ.get("EVE3D_HITNET_DIR"), Path.home() / ".cache/eve3d/hitnet",
