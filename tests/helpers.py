@@ -66,6 +66,22 @@ def write_config(tmp_path: Path, **overrides) -> Path:
     return path
 
 
+# -- photos --------------------------------------------------------------------------------
+
+ORIENTATION = 274
+"""The EXIF tag of the orientation; 6 ("upper-right", a phone held upright) asks a viewer to
+rotate the stored pixels 90° clockwise."""
+
+
+def save_sideways(upright: np.ndarray, path, quality: int = 95) -> None:
+    """Store ``upright`` as a phone does: pixels turned 90° counter-clockwise, tag 6."""
+    from PIL import Image
+
+    exif = Image.Exif()
+    exif[ORIENTATION] = 6
+    Image.fromarray(np.ascontiguousarray(np.rot90(upright))).save(path, exif=exif, quality=quality)
+
+
 # -- training --------------------------------------------------------------------------------
 
 def joint_settings(**kw):
@@ -78,6 +94,102 @@ def joint_settings(**kw):
                 densify=DensifySettings(refine_start=10, refine_every=10, refine_stop=50, reset_every=0))
     base.update(kw)
     return JointSettings(**base)
+
+
+# -- multi-view geometry: a textured plane ------------------------------------------------
+
+def plane_views(tilt: float = 0.0, xs: tuple[float, ...] = (0.0, 0.3)):
+    """Views at x = ``xs`` of a textured plane 3 units ahead (tilted about y by ``tilt``
+    rad), with the first (reference) view's exact depth: ``(list[View], depth)``."""
+    import torch
+
+    from eve3d.core.scene import Camera
+    from eve3d.gaussians.render.projection import CameraTensors
+    from eve3d.gaussians.views import View
+
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    n = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])  # faces the cameras
+    views, depth_ref = [], None
+    for i, x in enumerate(xs):
+        cam = Camera(f"{i}.png", 64, 48, K, np.eye(3), np.array([-x, 0.0, 0.0]))
+        ct = CameraTensors.from_camera(cam, torch.float64)
+        rays = ct.rays().numpy()
+        centre = np.array([x, 0.0, 0.0])
+        # plane n·X = −3 (X world); ray X = c + s·r: s = (−3 − n·c) / (n·r)
+        s = (-3 - centre @ n) / (rays @ n)
+        p = centre + rays * s[..., None]
+        tex = 0.5 + 0.25 * np.sin(7 * p[..., 0]) * np.cos(5 * p[..., 1]) + 0.2 * np.sin(11 * p[..., 0] + 3 * p[..., 1])
+        image = torch.tensor(np.repeat(tex[..., None], 3, -1))
+        views.append(View(i, cam, ct, image))
+        if i == 0:
+            depth_ref = torch.tensor(s)  # z of the reference camera (R = I)
+    return views, depth_ref
+
+
+def plane_view_pair(tilt: float = 0.0):
+    """Two views 0.3 apart along x of the plane of :func:`plane_views`: reference, neighbour, depth."""
+    (ref, nbr), depth = plane_views(tilt)
+    return ref, nbr, depth
+
+
+def plane_seen_twice():
+    """A textured plane z = 3 seen by two cameras; exact depth, normal, distance, images."""
+    import torch
+
+    from eve3d.core.scene import Camera
+    from eve3d.gaussians.render.projection import CameraTensors
+
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    ry = np.radians(8)
+    R2 = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
+    cams = [Camera("a.png", 64, 48, K, np.eye(3), np.zeros(3)),
+            Camera("b.png", 64, 48, K, R2, np.array([-0.4, 0.05, 0.0]))]
+    out = []
+    for cam in cams:
+        rays = cam.pixel_rays()
+        c = cam.center
+        s = (3.0 - c[2]) / rays[..., 2]
+        p = c + rays * s[..., None]
+        tex = 0.5 + 0.25 * np.sin(3 * p[..., 0]) * np.cos(2 * p[..., 1]) + 0.2 * np.sin(5 * p[..., 0] + 1.3 * p[..., 1])
+        depth = (p @ cam.R.T + cam.t)[..., 2]
+        out.append((CameraTensors.from_camera(cam, torch.float64), torch.tensor(depth),
+                    torch.tensor(np.repeat(tex[..., None], 3, -1))))
+    normal_a = torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64).expand(48, 64, 3)
+    return out, normal_a, torch.full((48, 64), 3.0, dtype=torch.float64)
+
+
+# -- meshes --------------------------------------------------------------------------------
+
+def split_long_edges(tri: np.ndarray, max_edge: float) -> np.ndarray:
+    """Triangles (T,3,3) halved across their longest edge until no edge exceeds ``max_edge``."""
+    while True:
+        edges = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=-1)  # edge k: vertex k → k+1
+        long = edges.max(axis=1) > max_edge
+        if not long.any():
+            return tri
+        t, k = tri[long], edges[long].argmax(axis=1)
+        a, b, c = (t[np.arange(len(t)), (k + j) % 3] for j in range(3))
+        m = (a + b) / 2
+        tri = np.concatenate([tri[~long], np.stack([a, m, c], 1), np.stack([m, b, c], 1)])
+
+
+def tilted_plane(path: Path | None = None):
+    """A camera at the origin (fx = fy = 50, 40×30, looking down +z) and a quad of the plane
+    z = 2 + x/2 that covers the left half of its image (x ≤ 0), written to ``path`` when given.
+    Returns the camera, the mesh and the plane's exact depth per pixel (the right half: 0)."""
+    import open3d as o3d
+
+    from eve3d.core.scene import Camera
+
+    cam = Camera("v.png", 40, 30, np.array([[50.0, 0, 20], [0, 50, 15], [0, 0, 1]]), np.eye(3), np.zeros(3))
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector([[-3, -3, 0.5], [0, -3, 2], [0, 3, 2], [-3, 3, 0.5]]),
+                                     o3d.utility.Vector3iVector([[0, 1, 2], [0, 2, 3]]))
+    if path is not None:
+        o3d.io.write_triangle_mesh(str(path), mesh)
+    u = np.arange(40) + 0.5
+    dx = (u - 20) / 50  # the ray (dx, dy, 1) meets z = 2 + x/2 at z = 2 / (1 - dx/2)
+    depth = np.where(dx < 0, 2 / (1 - dx / 2), 0.0)
+    return cam, mesh, np.tile(depth, (30, 1))
 
 
 # -- stereo ----------------------------------------------------------------------------------

@@ -1,12 +1,18 @@
-"""SfM on a generated object scene given as images only."""
+"""eve3d.sfm: posing a folder of photos (a generated object's, EXIF-rotated ones, bad files, two sizes)."""
+import shutil
+
 import numpy as np
 import pytest
+from PIL import Image
 
+from eve3d.core.fileio import read_image
 from eve3d.core.io import load_scene
 from eve3d.core.io.colmap import read_colmap
+from eve3d.core.photos import read_view
 from eve3d.core.scene import similarity_fit
+from eve3d.core.settings import RenderSettings
 from eve3d.synth import generate
-from tests.helpers import TINY_START, run_cli
+from tests.helpers import TINY_START, run_cli, save_sideways
 
 
 @pytest.mark.slow
@@ -30,21 +36,48 @@ def test_sfm_registers_every_view_and_recovers_the_poses(tmp_path):
     assert err.max() < 0.01
 
 
-def test_generated_scenes_start_from_points_sfm_triangulates(object_dataset):
-    """A generated scene's sparse points are what a user's SfM gives with known poses
-    (features matched and triangulated by pycolmap), not samples of the GT surface: most lie
-    on the surface, some do not, every point is seen by two views or more and projects
-    near its features, and the poses are the generator's, untouched."""
-    import open3d as o3d
+def camera_centres(scene) -> dict[str, np.ndarray]:
+    return {c.view_id: c.center for c in scene.cameras}
 
-    scene = load_scene(object_dataset)
-    gt = o3d.t.geometry.RaycastingScene()
-    gt.add_triangles(o3d.t.io.read_triangle_mesh(str(object_dataset / "gt" / "mesh.ply")))
-    distance = gt.compute_distance(o3d.core.Tensor(scene.points.astype(np.float32))).numpy()
-    print(f"{len(scene.points)} points; distance to the GT surface: median {np.median(distance):.4f}, "
-          f"within 1 cm {np.mean(distance < 0.01):.2f}, beyond 10 cm {np.mean(distance > 0.1):.2f}")
-    assert len(scene.points) > 1000
-    assert np.median(distance) < 0.01 and 0.5 < np.mean(distance < 0.01) < 0.95  # outliers and all
-    assert all(len(v) >= 2 for v in scene.point_views)
-    colmap = read_colmap(object_dataset / "sparse" / "0", object_dataset / "images")
-    assert [c.center.round(9).tolist() for c in colmap.cameras] == [c.center.round(9).tolist() for c in scene.cameras]
+
+@pytest.mark.slow
+def test_exif_rotated_photos_give_the_poses_and_images_of_upright_ones(object_photos, object_photos_sfm, tmp_path):
+    """The same 16 views stored upright and stored sideways with the EXIF tag register with
+    the same poses and give the same training images. Stored losslessly (PNG with the tag),
+    the import makes the two sets the same pixels, so single-threaded SfM (bit-reproducible)
+    must give the same model to rounding; a JPEG set re-encodes differently, and a phone's
+    JPEGs are exercised by ``eve3d bench real``."""
+    (tmp_path / "sideways" / "images").mkdir(parents=True)
+    for png in sorted((object_photos / "images").glob("*.png")):
+        save_sideways(read_image(png), tmp_path / "sideways" / "images" / png.name)
+    r = run_cli("sfm", tmp_path / "sideways", tmp_path / "sideways-sfm")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert Image.open(tmp_path / "sideways/images/000.png").size == (360, 480)  # stored sideways
+    up, side = load_scene(object_photos_sfm), load_scene(tmp_path / "sideways-sfm")
+    assert [c.view_id for c in side.cameras] == [c.view_id for c in up.cameras] and len(up.cameras) == 16
+    for cu, cs in zip(up.cameras, side.cameras):
+        assert (cs.width, cs.height) == (cu.width, cu.height) and cs.width > cs.height  # upright
+        assert np.allclose(cs.K, cu.K) and np.allclose(cs.R, cu.R, atol=1e-9) and np.allclose(cs.t, cu.t, atol=1e-9)
+    # the training images (each at the training size, from the pyramid) are the same pixels
+    settings = RenderSettings(resolution=0.5)
+    for cu, cs in zip(up.cameras, side.cameras):
+        assert np.array_equal(read_view(settings.sized(cu)), read_view(settings.sized(cs)))
+
+
+@pytest.mark.slow
+def test_sfm_skips_bad_files_and_gives_each_photo_size_a_camera(object_photos, tmp_path):
+    """A note, a zero-byte JPEG and photos of two sizes: skipped with a warning naming each
+    file, and a camera per size, never a traceback."""
+    data = shutil.copytree(object_photos, tmp_path / "data")
+    for png in list((data / "images").glob("*.png"))[::3]:  # every third photo from a camera with fewer pixels
+        Image.open(png).resize((400, 300), Image.LANCZOS).save(png)
+    (data / "images" / "notes.txt").write_text("tripod, f/8")
+    (data / "images" / "IMG_0000.JPG").write_bytes(b"")
+    r = run_cli("sfm", data, tmp_path / "sfm")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "notes.txt: not an image" in r.stderr and "IMG_0000.JPG: unreadable image (empty file)" in r.stderr
+    assert "photos of 2 sizes" in r.stderr and "Traceback" not in r.stderr
+    scene = load_scene(tmp_path / "sfm")
+    assert len(scene.cameras) == 16
+    sizes = {(c.width, c.height) for c in scene.cameras}
+    assert len(sizes) == 2 and max(sizes)[0] > 440 and min(sizes)[0] < 410, sizes  # ~480×360 and ~400×300

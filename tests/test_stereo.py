@@ -1,18 +1,18 @@
-"""Virtual stereo: right cameras and views, the confidence checks every backend passes through, depth from disparity."""
+"""eve3d.stereo: right cameras and views, the confidence checks every backend passes through, depth from disparity."""
 import json
 
 import numpy as np
 import pytest
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.maps import load_maps, preview_image
-from eve3d.core.photos import equalizing_curve
+from eve3d.core.maps import load_maps
 from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import BaselineSettings, MatchCheck
+from tests.helpers import dim, sgbm_priors, shifted_pair, stereo_scene
+from eve3d.core.photos import equalizing_curve
 from eve3d.priors.matching import local_std
 from eve3d.priors.sgbm import sgbm_disparity
 from eve3d.stereo import PAIRS_FILE, checked_confidence, render_right_views, right_camera
-from tests.helpers import dim, sgbm_priors, shifted_pair, stereo_scene
 
 
 def test_right_camera_gives_disparity_fx_b_over_z():
@@ -53,13 +53,6 @@ def test_sgbm_priors_match_the_photo_through_the_pretrains_tone_curve(tmp_path):
     (tmp_path / "stereo" / PAIRS_FILE).write_text(json.dumps({**pairs, "tone_curve": [0, 1]}))
     with pytest.raises(Eve3dError, match="tone_curve must list 256"):
         sgbm_priors(scene, tmp_path / "stereo", tmp_path / "bad", preview=False)
-
-
-def test_pretrain_equalize_out_of_range_is_named():
-    from eve3d.core.settings import PretrainSettings
-
-    with pytest.raises(Eve3dError, match="pretrain.equalize"):
-        PretrainSettings(equalize=0.5)
 
 
 def test_sgbm_priors_write_depth_fx_b_over_d(tmp_path):
@@ -189,34 +182,3 @@ def test_neighbour_photos_agree_with_the_exact_depth_and_not_with_a_wrong_one(ob
     agree = lambda d: ((neighbour_ncc(cams[i], photo, d, others) >= 0.5).sum(0) >= 2)[textured].mean()  # noqa: E731
     assert agree(depth) > 0.85  # measured 0.92
     assert agree(1.08 * depth) < 0.45  # measured 0.35
-
-
-def test_dark_room_is_the_inside_room_darker_and_flatter(tmp_path):
-    """The hard case for stereo: the same capture as ``inside-room`` (same cameras), with
-    walls and ceiling dark and of low contrast."""
-    from eve3d.core.fileio import read_image
-    from eve3d.synth import generate
-
-    images = {}
-    for kind in ("inside-room", "dark-room"):
-        scene = generate(kind, tmp_path / kind, views=3, width=80, height=60)
-        images[kind] = np.stack([read_image(p) for p in sorted((scene / "images").glob("*.png"))])
-    bright, dark = images["inside-room"].astype(float), images["dark-room"].astype(float)
-    walls = np.abs(bright - dark).max(-1) > 2  # the rest (floor, furniture) is unchanged
-    assert 0.2 < walls.mean() < 0.9 and np.abs(bright - dark)[~walls].max() <= 2
-    assert dark[walls].mean() < 0.4 * bright[walls].mean()
-    spread = lambda im: np.median(np.stack([local_std(v, 5) for v in im])[walls])  # noqa: E731
-    assert spread(dark) < 0.4 * spread(bright)
-
-
-def test_depth_preview_shows_only_confident_depth():
-    """A matcher that keeps a guess where it is not confident (mccnn, a network): the preview
-    leaves those pixels black, and a far wrong guess does not flatten the others' colours."""
-    depth = np.tile(np.linspace(2.0, 3.0, 40, dtype=np.float32), (10, 1))
-    depth[:, :5] = 80.0  # rejected guesses
-    confidence = np.ones_like(depth)
-    confidence[:, :5] = 0
-    shown = preview_image("depth", depth, confidence)
-    assert not shown[:, :5].any()
-    assert np.ptp(shown[:, 5:].astype(int), axis=1).max() > 100  # 2 → 3 still spans the colour map
-    assert preview_image("depth", depth)[:, :5].any()  # without a confidence every depth shows

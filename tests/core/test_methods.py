@@ -1,10 +1,10 @@
-"""The method registry: variants are config, and the workflow and the CLI read the names."""
+"""eve3d.core.methods: the method registry; variants are config, and train as the method they spell out."""
 import pytest
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.methods import REGISTRY, methods
 from eve3d.joint import train_joint
-from tests.helpers import joint_settings, snakemake, write_config
+from tests.helpers import joint_settings
 
 
 def test_variants_add_methods_and_change_registered_ones():
@@ -51,29 +51,3 @@ def _overrides(settings: dict) -> dict:
         base = joint_settings().densify
         out["densify"] = replace(base, **out["densify"]) if isinstance(base, DensifySettings) else out["densify"]
     return out
-
-
-def test_unknown_method_in_config_is_named_before_any_job(tmp_path):
-    cfg = write_config(tmp_path, methods=["oracle", "eve3dd"])
-    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
-    assert r.returncode != 0 and "unknown method(s) eve3dd" in r.stdout + r.stderr
-
-
-def test_a_config_variant_gets_its_own_jobs(tmp_path):
-    cfg = write_config(tmp_path, methods=["pgsr", "pgsr-flat"], variants={"pgsr-flat": {"method": "pgsr", "dn_weight": 0}})
-    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config", "-p")
-    assert r.returncode == 0, r.stderr[-2000:]
-    out = r.stdout + r.stderr
-    assert "tiny/pgsr-flat/point_cloud.ply" in out and "tiny/pgsr/point_cloud.ply" in out
-    assert "--method pgsr-flat" in out and '"pgsr-flat": {"dn_weight": 0, "method": "pgsr"}' in out
-
-
-def test_a_prior_method_depends_on_the_stereo_priors_in_the_workflow(tmp_path):
-    cfg = write_config(tmp_path, methods=["pgsr", "eve3d", "eve3d-fast"], stereo={"backend": "sgbm"})
-    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config", "-p")
-    assert r.returncode == 0, r.stderr[-2000:]
-    out = r.stdout + r.stderr
-    assert "rule stereo_depth" in out and f"--priors {tmp_path}/results/tiny/priors/sgbm" in out
-    assert out.count("--priors") == 2  # eve3d and eve3d-fast, not pgsr
-    # the cpu preset's eve3d-fast schedule reaches the job
-    assert '"eve3d-fast": {"densify": {"refine_stop": 600}, "dn_from": 250' in out

@@ -1,5 +1,4 @@
-"""Tanks and Temples protocol: scoring against a brute-force reference, the full alignment
-on a synthetic T&T layout with known frames, and its input errors."""
+"""eve3d.evaluate.tnt: the Tanks and Temples protocol (scores, the alignment of known frames, input errors)."""
 
 import numpy as np
 import pytest
@@ -12,7 +11,6 @@ from eve3d.core.scene import Camera, Scene, look_at
 from eve3d.core.settings import EvalSettings
 from eve3d.core.surface import sample_surface
 from eve3d.evaluate import EvalInputs
-from eve3d.evaluate.common import hot_r
 from eve3d.evaluate.tnt import TAU, align_trajectory, evaluate_tnt, log_centres, read_crop, score
 from eve3d.tools.standin import similarity, write_crop, write_log
 
@@ -102,12 +100,6 @@ def test_empty_side_scores_zero(tmp_path):
     s = score(cloud, cloud, away, read_crop(tmp_path / "crop.json"), 0.05)
     assert (s.precision, s.recall, len(s.recon.points)) == (0.0, 0.0, 0)
     assert score(cloud, cloud, np.eye(4), read_crop(tmp_path / "crop.json"), 0.05)[:2] == (1.0, 1.0)
-
-
-def test_hot_r_colours():
-    rgb = hot_r(np.array([0.0, 0.5, 1.0, 7.0]))
-    assert np.allclose(rgb[0], 1.0) and np.allclose(rgb[2], [0.0416, 0, 0]) and np.allclose(rgb[3], rgb[2])
-    assert rgb[1, 0] == 1.0 and 0.3 < rgb[1, 1] < 0.4 and rgb[1, 2] == 0.0   # orange at the middle
 
 
 def apply(m, points):

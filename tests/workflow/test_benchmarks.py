@@ -193,8 +193,7 @@ def test_a_wrong_trajectory_stops_before_training(downloads, object_views, tmp_p
 def test_each_benchmark_runs_end_to_end(downloads, tmp_path, name):
     """The benchmark's config, only the tiny schedule and the miniature's scene changed:
     every method but pgsr to its score in summary.csv. (eve3d is pgsr with the priors and an
-    opacity loss; pgsr's runs end to end are tests/workflow/test_workflow.py's and
-    tests/test_pipeline.py's.)"""
+    opacity loss; pgsr's runs end to end are tests/workflow/test_workflow.py's.)"""
     config = benchmark_config(name, downloads[name], tmp_path / "results", **TINY)
     config["methods"] = [m for m in config["methods"] if m != "pgsr"]
     cfg = tmp_path / "config.yaml"

@@ -4,20 +4,23 @@ import json
 import math
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 import yaml
+import pytest
 from PIL import Image
 
+from eve3d.core.fileio import read_image
 from eve3d.core.io import load_scene
 from eve3d.core.io.colmap import write_colmap
-from eve3d.core.layout import EVALUATION, PRETRAIN, RECORD, TRAINING, Layout
+from eve3d.core.layout import EVALUATION, HELD_OUT_DIR, MESH_VIEWS_DIR, PRETRAIN, RECORD, TRAINING, Layout
 from eve3d.synth import generate
 from eve3d.tools.profile import log_jobs, read_run
 from eve3d.tools.standin import dtu_scale_mat, write_dtu_layout
-from tests.helpers import REPO, run_cli, snakemake, write_config
+from tests.helpers import REPO, SNAKEFILE, run_cli, snakemake, write_config
 
 # -- what each rule writes ---------------------------------------------------------------------
 
@@ -394,41 +397,154 @@ def test_failed_rows_name_the_job_each_row_waited_for(tmp_path):
          "log": str(priors)}]
 
 
-def test_progress_shows_job_starts_ends_and_the_training_bar(tmp_path):
-    """The logger plugin's handler: a line per job start and end with its stage, scene,
-    method and wall time; the running job's latest bar from its log (no drawing), printed
-    once while it does not change; errors as Snakemake formats them."""
-    import io
-    import logging
+def _digests(root: Path) -> dict[str, str]:
+    import hashlib
+
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.slow
+def test_killed_training_reruns_to_the_same_result(tmp_path):
+    """A training job killed with SIGKILL in the middle of the workflow, then the workflow
+    rerun: the same Gaussians, mesh scores and depth as an uninterrupted run (one thread, the
+    same seed), resumed from the job's checkpoint, and every artefact written before the kill
+    byte for byte as it was."""
+    import signal
+    import subprocess
+    import sys
     import time
 
-    from snakemake_interface_logger_plugins.common import LogEvent
-    from snakemake_logger_plugin_eve3d.progress import ProgressHandler, latest_progress
+    import psutil
+    import torch
 
-    log = tmp_path / "joint_eve3d.log"
-    log.write_text("eve3d: loading images\neve3d:  10%|#         | 10/100 [00:01<00:09, 9.9it/s, loss=0.2, psnr=12.00]"
-                   "\reve3d:  20%|##        | 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]")
-    assert latest_progress(log) == "eve3d: 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]"
-    assert latest_progress(tmp_path / "missing.log") is None
+    from eve3d.core.layout import Layout
+    from eve3d.gaussians.model import GaussianModel
+    from tests.helpers import REPO, SNAKEFILE, snakemake, write_config
 
-    def record(event, level=logging.INFO, msg="", **fields):
-        r = logging.LogRecord("snakemake", level, "", 0, msg, None, None)
-        r.event = event
-        r.__dict__.update(fields)
-        return r
+    short = {"refine_start": 10, "refine_every": 10, "refine_stop": 40, "reset_every": 0}
+    runs = {}
+    for name in ("straight", "killed"):
+        (tmp_path / name).mkdir()
+        runs[name] = write_config(tmp_path / name, methods=["pgsr"],
+                                  scenes={"tiny": {"synthetic": {"kind": "object", "views": 6, "width": 64, "height": 48}}},
+                                  joint={"iterations": 60, "checkpoint_every": 20, "dn_from": 20, "mv_from": 20,
+                                         "densify": short})
+    # -c1: the job trains on one thread; the target: the scores (no summary, no report)
+    command = ["-c1", "--replace-workflow-config", "--configfile"]
+    target = lambda name: str(Layout(tmp_path / name / "results").metrics("tiny", "pgsr"))  # noqa: E731
+    r = snakemake(target("straight"), *command, str(runs["straight"]))
+    assert r.returncode == 0, r.stderr[-3000:]
 
-    out = io.StringIO()
-    handler = ProgressHandler(out, interval=0.2)
-    handler.emit(record(LogEvent.PROGRESS, done=3, total=9))
-    handler.emit(record(LogEvent.JOB_INFO, jobid=7, rule_name="joint", wildcards={"scene": "tiny", "method": "eve3d"},
-                        log=[str(log)]))
-    time.sleep(1.5)  # the poller reads the log; the line does not change, so it is printed once
-    handler.emit(record(LogEvent.JOB_FINISHED, job_id=7))
-    handler.emit(record(None, logging.INFO, "Select jobs to execute..."))  # chatter: not shown
-    handler.emit(record(LogEvent.ERROR, logging.ERROR, "WorkflowError: at least one job failed"))
-    handler.close()
-    lines = out.getvalue().splitlines()
-    assert lines[0] == "[3/9] start   joint tiny eve3d"
-    assert lines[1] == "        joint tiny eve3d: eve3d: 20/100 [00:02<00:08, 9.9it/s, loss=0.1000, n=512, psnr=18.31]"
-    assert re.fullmatch(r"\[4/9\] done    joint tiny eve3d  [12] s", lines[2]), lines
-    assert lines[3:] == ["WorkflowError: at least one job failed"]
+    layout = Layout(tmp_path / "killed/results")
+    checkpoint = layout.method("tiny", "pgsr") / "checkpoint.pt"
+    run = subprocess.Popen([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), target("killed"),
+                            *command, str(runs["killed"])], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not checkpoint.exists() and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert checkpoint.exists(), "the training job wrote no checkpoint"
+    trainer = [p for p in psutil.Process(run.pid).children(recursive=True)
+               if "joint" in p.cmdline() and "eve3d" in p.cmdline()]
+    assert len(trainer) == 1
+    before = _digests(layout.input("tiny"))
+    trainer[0].send_signal(signal.SIGKILL)
+    assert run.wait(timeout=120) != 0
+    assert checkpoint.exists() and not layout.model("tiny", "pgsr").exists()  # nothing that looks complete
+    r = snakemake(target("killed"), *command, str(runs["killed"]))
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "resum" in layout.log("tiny", "joint", "pgsr").read_text()
+    assert _digests(layout.input("tiny")) == before  # the earlier artefacts, untouched
+    assert not checkpoint.exists()
+
+    straight = Layout(tmp_path / "straight/results")
+    a, b = (GaussianModel.load_ply(x.model("tiny", "pgsr")) for x in (straight, layout))
+    assert len(a) == len(b)
+    for key, value in a.params.items():
+        assert torch.allclose(b.params[key], value, atol=1e-5), key
+    scores = [json.loads(x.metrics("tiny", "pgsr").read_text()) for x in (straight, layout)]
+    for key in ("accuracy", "completeness", "precision", "recall", "fscore"):
+        assert scores[1][key] == pytest.approx(scores[0][key], rel=1e-3, abs=1e-5), key
+
+
+@pytest.mark.slow
+def test_photos_and_their_path_run_to_meshes_and_held_out_scores(object_photos, tmp_path):
+    """An images-only scene with no other key: SfM, the default nvs protocol, meshes of every
+    trained method with their shaded views, held-out views side by side with the photos."""
+    data = shutil.copytree(object_photos, tmp_path / "mine")
+    short = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
+    # pgsr left out: eve3d is pgsr with the priors and an opacity loss; pgsr's runs end to end
+    # are tests/workflow/test_workflow.py's
+    cfg = write_config(tmp_path, methods=["oracle", "stereo-tsdf", "eve3d"],
+                       scenes={"mine": {"path": str(data)}}, train={"max_side": 240},  # trained at 240×180
+                       pretrain={"iterations": 80, "reinit_at": [], "simplify_at": [60], "densify": short},
+                       joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "prior_from": 5, "joint_from": 20,
+                              "init_prior_points": 3000, "densify": short})
+    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode == 0, r.stderr[-3000:]
+    layout = Layout(tmp_path / "results")
+    scene = load_scene(layout.sfm("mine"))
+    held = [c.view_id for i, c in enumerate(scene.cameras) if i % 8 == 0]
+    m = json.loads(layout.metrics("mine", "eve3d").read_text())
+    assert m["protocol"] == "nvs" and m["views"] == 2 and math.isfinite(m["psnr"]) and m["psnr"] > 10
+    assert layout.mesh("mine", "eve3d").is_file()
+    views = sorted(p.name for p in (layout.method("mine", "eve3d") / MESH_VIEWS_DIR).glob("*.png"))
+    assert len(views) == 4 and "overview.png" in views
+    shaded = read_image(layout.method("mine", "eve3d") / MESH_VIEWS_DIR / "overview.png")
+    assert (shaded < 250).any(axis=-1).mean() > 0.02  # the mesh covers part of the picture
+    pairs = sorted(p.stem for p in (layout.method("mine", "eve3d") / HELD_OUT_DIR).glob("*.png"))
+    assert pairs == held
+    assert not layout.method("mine", "oracle").exists() and not layout.method("mine", "stereo-tsdf").exists()
+    assert json.loads(layout.train_metrics("mine", PRETRAIN).read_text())["held_out"]["views"] == 2
+    assert (layout.sfm("mine") / "images_2").is_dir()
+
+
+def test_the_workflow_passes_each_job_its_sections_as_one_argument(tmp_path):
+    """Every eve3d job of the default workflow gets its settings as one inline --config with
+    `preset: null` and the resolved sections; no settings flag is written by hand."""
+    import json
+    import shlex
+
+    r = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), "-n", "-p", "--config",
+                        f"results={tmp_path / 'results'}"], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr[-3000:]
+    commands = [line for line in r.stdout.splitlines() if " -m eve3d " in line and " summary " not in line]
+    assert len(commands) >= 10
+    reads = {"synth": {"synthetic"}, "stereo-depth": {"stereo"}, "stereo-render": {"stereo", "pretrain"},
+             "pretrain": {"train", "pretrain"}, "joint": {"train", "joint"}, "mesh": {"mesh"},
+             "evaluate": {"evaluate", "mesh"}, "report": {"stereo"}}
+    for line in commands:
+        argv = shlex.split(line.split(" -m eve3d ", 1)[1].split(" > ")[0])
+        assert argv.count("--config") == 1, line
+        job = json.loads(argv[argv.index("--config") + 1])
+        assert job.pop("preset", "missing") is None and set(job) - {"variants"} == reads[argv[0]], line
+        flags = [x for x in argv if x.startswith("--")]
+        assert set(flags) <= {"--config", "--scene", "--out", "--model", "--depth", "--mesh", "--gt", "--gt-mesh",
+                              "--stereo", "--priors", "--method", "--backend", "--protocol", "--exact-depth",
+                              "--scene-name", "--kind", "--results", "--dataset"}, line
+
+
+def test_unknown_method_in_config_is_named_before_any_job(tmp_path):
+    cfg = write_config(tmp_path, methods=["oracle", "eve3dd"])
+    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
+    assert r.returncode != 0 and "unknown method(s) eve3dd" in r.stdout + r.stderr
+
+
+def test_a_config_variant_gets_its_own_jobs(tmp_path):
+    cfg = write_config(tmp_path, methods=["pgsr", "pgsr-flat"], variants={"pgsr-flat": {"method": "pgsr", "dn_weight": 0}})
+    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config", "-p")
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout + r.stderr
+    assert "tiny/pgsr-flat/point_cloud.ply" in out and "tiny/pgsr/point_cloud.ply" in out
+    assert "--method pgsr-flat" in out and '"pgsr-flat": {"dn_weight": 0, "method": "pgsr"}' in out
+
+
+def test_a_prior_method_depends_on_the_stereo_priors_in_the_workflow(tmp_path):
+    cfg = write_config(tmp_path, methods=["pgsr", "eve3d", "eve3d-fast"], stereo={"backend": "sgbm"})
+    r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config", "-p")
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout + r.stderr
+    assert "rule stereo_depth" in out and f"--priors {tmp_path}/results/tiny/priors/sgbm" in out
+    assert out.count("--priors") == 2  # eve3d and eve3d-fast, not pgsr
+    # the cpu preset's eve3d-fast schedule reaches the job
+    assert '"eve3d-fast": {"densify": {"refine_stop": 600}, "dn_from": 250' in out

@@ -1,4 +1,4 @@
-"""The ONNX stereo backend with small networks the test builds and exports itself."""
+"""eve3d.priors.onnx: the ONNX stereo backend, with small networks the test builds and exports itself."""
 import numpy as np
 import pytest
 import torch

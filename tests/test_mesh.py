@@ -1,27 +1,14 @@
-"""Oracle depth → TSDF → evaluation on the embedded default scene."""
+"""eve3d.mesh: depth maps fused into a TSDF and its mesh (the grid's blocks, the region, the mesh's order and clusters)."""
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from eve3d.core.io import load_scene
 from eve3d.core.maps import load_maps
-from eve3d.core.raycast import MeshRaycaster
 from eve3d.synth import generate
 from tests.helpers import run_cli
-
-
-def test_synthetic_scene_is_consistent(object_scene):
-    """The sparse points, SIFT matched between the photos and triangulated with the known
-    poses, project where the GT depth says: photos, cameras and GT mesh agree. Measured:
-    180 points in view 3, median relative depth difference 0.30 %, 95 % within 5 %."""
-    caster = MeshRaycaster.from_file(object_scene.gt_mesh)
-    cam = object_scene.cameras[3]
-    seen = [i for i, v in enumerate(object_scene.point_views) if 3 in v]
-    uv, z = cam.project(object_scene.points[seen])
-    rel = np.abs(caster.cast_uv(cam, uv).depth - z) / z
-    assert len(seen) > 100 and np.median(rel) < 0.01 and np.mean(rel < 0.05) > 0.85
-    assert object_scene.kind == "object" and len(object_scene.cameras) == 32
 
 
 @pytest.fixture(scope="module")
@@ -143,76 +130,6 @@ def test_fusion_past_what_open3d_extracts_is_refused_before_fusing(tiny_dataset,
     assert made == [1]  # the probe that counts the blocks, no grid to fuse into
 
 
-def _digests(root: Path) -> dict[str, str]:
-    import hashlib
-
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file()}
-
-
-@pytest.mark.slow
-def test_killed_training_reruns_to_the_same_result(tmp_path):
-    """A training job killed with SIGKILL in the middle of the workflow, then the workflow
-    rerun: the same Gaussians, mesh scores and depth as an uninterrupted run (one thread, the
-    same seed), resumed from the job's checkpoint, and every artefact written before the kill
-    byte for byte as it was."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    import psutil
-    import torch
-
-    from eve3d.core.layout import Layout
-    from eve3d.gaussians.model import GaussianModel
-    from tests.helpers import REPO, SNAKEFILE, snakemake, write_config
-
-    short = {"refine_start": 10, "refine_every": 10, "refine_stop": 40, "reset_every": 0}
-    runs = {}
-    for name in ("straight", "killed"):
-        (tmp_path / name).mkdir()
-        runs[name] = write_config(tmp_path / name, methods=["pgsr"],
-                                  scenes={"tiny": {"synthetic": {"kind": "object", "views": 6, "width": 64, "height": 48}}},
-                                  joint={"iterations": 60, "checkpoint_every": 20, "dn_from": 20, "mv_from": 20,
-                                         "densify": short})
-    # -c1: the job trains on one thread; the target: the scores (no summary, no report)
-    command = ["-c1", "--replace-workflow-config", "--configfile"]
-    target = lambda name: str(Layout(tmp_path / name / "results").metrics("tiny", "pgsr"))  # noqa: E731
-    r = snakemake(target("straight"), *command, str(runs["straight"]))
-    assert r.returncode == 0, r.stderr[-3000:]
-
-    layout = Layout(tmp_path / "killed/results")
-    checkpoint = layout.method("tiny", "pgsr") / "checkpoint.pt"
-    run = subprocess.Popen([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), target("killed"),
-                            *command, str(runs["killed"])], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 300
-    while not checkpoint.exists() and run.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert checkpoint.exists(), "the training job wrote no checkpoint"
-    trainer = [p for p in psutil.Process(run.pid).children(recursive=True)
-               if "joint" in p.cmdline() and "eve3d" in p.cmdline()]
-    assert len(trainer) == 1
-    before = _digests(layout.input("tiny"))
-    trainer[0].send_signal(signal.SIGKILL)
-    assert run.wait(timeout=120) != 0
-    assert checkpoint.exists() and not layout.model("tiny", "pgsr").exists()  # nothing that looks complete
-    r = snakemake(target("killed"), *command, str(runs["killed"]))
-    assert r.returncode == 0, r.stderr[-3000:]
-    assert "resum" in layout.log("tiny", "joint", "pgsr").read_text()
-    assert _digests(layout.input("tiny")) == before  # the earlier artefacts, untouched
-    assert not checkpoint.exists()
-
-    straight = Layout(tmp_path / "straight/results")
-    a, b = (GaussianModel.load_ply(x.model("tiny", "pgsr")) for x in (straight, layout))
-    assert len(a) == len(b)
-    for key, value in a.params.items():
-        assert torch.allclose(b.params[key], value, atol=1e-5), key
-    scores = [json.loads(x.metrics("tiny", "pgsr").read_text()) for x in (straight, layout)]
-    for key in ("accuracy", "completeness", "precision", "recall", "fscore"):
-        assert scores[1][key] == pytest.approx(scores[0][key], rel=1e-3, abs=1e-5), key
-
-
 def test_triangle_clusters_are_open3ds():
     """The clusters that drop floaters join triangles through shared edges, as open3d's
     ``cluster_connected_triangles`` does: the same cluster sizes per triangle on a sphere with
@@ -235,3 +152,25 @@ def test_triangle_clusters_are_open3ds():
     ours = triangle_clusters(np.asarray(mesh.triangles), len(mesh.vertices))
     assert np.array_equal(np.asarray(counts)[np.asarray(labels)], np.bincount(ours)[ours])
     assert len(np.unique(ours)) == len(np.asarray(counts)) == 6
+
+
+def test_a_far_background_does_not_become_a_wall(tmp_path):
+    """Every pixel that misses the object sees a 'sky' 60 units away, as a trained model
+    renders one: fused without a region the sky is a wall far out; within the region of
+    interest (the sparse points' box, doubled) the mesh is the object's size."""
+    from eve3d.core.maps import save_maps
+    from eve3d.core.raycast import MeshRaycaster
+    from eve3d.core.settings import MeshSettings
+    from eve3d.mesh import extent_report, fuse
+
+    scene = load_scene(generate("object", tmp_path / "data", views=12, width=160, height=120))
+    caster = MeshRaycaster.from_file(scene.gt_mesh)
+    for cam in scene.cameras:
+        depth = caster.cast(cam).depth.astype(np.float32)
+        save_maps(tmp_path / "depth" / f"{cam.view_id}.npz", preview=False, depth=np.where(depth > 0, depth, 60.0))
+    scene.kind = "scene"  # an open scene: no largest-cluster filter to hide the wall
+    walled = extent_report(fuse(scene, tmp_path / "depth", MeshSettings(coarsen=8, region=0)), scene)
+    cropped = extent_report(fuse(scene, tmp_path / "depth", MeshSettings(coarsen=8)), scene)
+    print(walled, cropped, sep="\n")
+    assert walled["extent_ratio"] > 10
+    assert cropped["extent_ratio"] <= 2.0 and max(cropped["extent"]) < 3.5  # the object is 3 × 3 × 0.85

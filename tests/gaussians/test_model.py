@@ -1,4 +1,4 @@
-"""Gaussian model: 3DGS initialisation, spherical harmonics and PLY I/O."""
+"""eve3d.gaussians.model: the Gaussians' initialisation (balls or discs), spherical harmonics, PLY I/O."""
 import math
 
 import numpy as np
@@ -73,3 +73,28 @@ def test_from_points_scales_by_nearest_neighbours():
     torch.testing.assert_close(model.opacities, torch.full((216,), 0.1))
     colors = model.colors(torch.tensor([1.0, 2.0, 3.0]))
     torch.testing.assert_close(colors, torch.full((216, 3), 0.25))
+
+
+def test_initial_gaussians_on_a_surface_are_discs_in_its_plane():
+    """Points on a slanted plane become discs whose thin axis is the plane's normal;
+    points scattered in a volume (3DGS's random start) stay balls."""
+    from eve3d.gaussians.model import GaussianModel
+    from eve3d.gaussians.render.projection import quat_to_rotmat
+
+    rng = np.random.default_rng(0)
+    normal = np.array([0.3, -0.4, 0.866]) / np.linalg.norm([0.3, -0.4, 0.866])
+    u = np.cross(normal, [1.0, 0, 0])
+    u /= np.linalg.norm(u)
+    plane = rng.uniform(-1, 1, (400, 2)) @ np.stack([u, np.cross(normal, u)])
+    volume = rng.uniform(-1, 1, (400, 3)) + 5
+    model = GaussianModel.from_points(np.concatenate([plane, volume]), None, 1, thickness=0.1)
+    axes = quat_to_rotmat(model.params["quats"]).numpy()
+    scales = model.scales.numpy()
+    assert np.abs(axes[:400, :, 2] @ normal).min() > 0.999
+    np.testing.assert_allclose(scales[:400, 2] / scales[:400, 0], 0.1, rtol=1e-5)
+    assert (scales[400:, 2] / scales[400:, 0] > 0.5).mean() > 0.95
+    line = np.outer(np.linspace(-1, 1, 50), normal) + 9  # collinear points span no plane: balls
+    on_line = GaussianModel.from_points(line, None, 1, thickness=0.1).scales.numpy()
+    assert np.allclose(on_line[:, 2], on_line[:, 0])
+    balls = GaussianModel.from_points(plane, None, 1)  # thickness 1: 3DGS's initialisation
+    assert np.allclose(balls.scales.numpy()[:, 2], balls.scales.numpy()[:, 0])

@@ -1,4 +1,4 @@
-"""The rasteriser against a brute-force reference, finite differences and analytic planes."""
+"""eve3d.gaussians.render: the rasteriser against a brute-force reference, finite differences and analytic planes."""
 import math
 
 import numpy as np
@@ -6,10 +6,8 @@ import pytest
 import torch
 from PIL import Image
 
-from eve3d.core.settings import RenderSettings
 from eve3d.gaussians.render import render
 from eve3d.gaussians.render.projection import ALPHA_MIN, CameraTensors, project, quat_to_rotmat
-from eve3d.gaussians.views import model_device
 
 
 def camera(width=24, height=18, dtype=torch.float64, tilt=0.0):
@@ -297,14 +295,6 @@ def test_fitting_an_image_by_adam_exceeds_30_db(object_dataset):
     psnr = -10 * math.log10(((out.rgb.detach() - target) ** 2).mean().item())
     print(f"PSNR after 300 steps: {psnr:.2f} dB")
     assert psnr > 30
-
-
-def test_a_model_read_from_disk_goes_where_its_backend_renders():
-    """stereo-render reads the pretrained model from its PLY: gsplat renders it only on the GPU."""
-    assert model_device(RenderSettings(backend="cpu")).type == "cpu"
-    assert model_device(RenderSettings(backend="torch")).type == "cpu"
-    assert model_device(RenderSettings(backend="gsplat")).type == "cuda"
-    assert model_device(RenderSettings(backend="auto")).type == ("cuda" if torch.cuda.is_available() else "cpu")
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA and gsplat")

@@ -1,5 +1,4 @@
-"""The ``cpu`` backend's fused C++ projection against finite differences and against its
-PyTorch reference, :func:`eve3d.gaussians.render.projection.project_gaussians`."""
+"""eve3d.gaussians.render.cpu: the fused C++ projection against finite differences and its PyTorch reference."""
 import math
 
 import pytest

@@ -1,5 +1,4 @@
-"""Eve3D: priors reaching training, the learnable priors D̂, the LBA and its shared
-multi-view code, initialisation from the priors, checkpoints over priors."""
+"""eve3d.joint: the joint stage (pgsr, eve3d and their variants): priors, D̂, the LBA, the opacity loss, resuming."""
 from dataclasses import replace
 from pathlib import Path
 
@@ -10,48 +9,21 @@ import torch
 from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps, save_maps
 from eve3d.core.methods import methods
-from eve3d.core.scene import Camera
 from eve3d.core.settings import JointSettings
+from eve3d.evaluate.depth import depth_accuracy
 from eve3d.gaussians.geometry import CameraStack
 from eve3d.gaussians.losses import forward_backward_error
-from eve3d.gaussians.render.projection import CameraTensors
+from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.train_state import Checkpoint
 from eve3d.gaussians.training import Trainer
-from eve3d.gaussians.views import View
 from eve3d.joint import multiview_terms, prior_plane, setup_joint, train_joint
-from eve3d.priors.learnable import resample_prior
 from eve3d.priors.oracle import priors_from_mesh
 from tests.helpers import joint_settings, run_cli
+from tests.helpers import plane_view_pair as _plane_pair
+from tests.helpers import plane_views as _plane_views
+
 
 # -- the LBA's geometry ----------------------------------------------------------------------
-
-def _plane_views(tilt: float = 0.0, xs: tuple[float, ...] = (0.0, 0.3)) -> tuple[list[View], torch.Tensor]:
-    """Views at x = ``xs`` of a textured plane 3 units ahead (tilted about y by ``tilt``
-    rad), with the first (reference) view's exact depth."""
-    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
-    n = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])  # faces the cameras
-    views, depth_ref = [], None
-    for i, x in enumerate(xs):
-        cam = Camera(f"{i}.png", 64, 48, K, np.eye(3), np.array([-x, 0.0, 0.0]))
-        ct = CameraTensors.from_camera(cam, torch.float64)
-        rays = ct.rays().numpy()
-        centre = np.array([x, 0.0, 0.0])
-        # plane n·X = −3 (X world); ray X = c + s·r: s = (−3 − n·c) / (n·r)
-        s = (-3 - centre @ n) / (rays @ n)
-        p = centre + rays * s[..., None]
-        tex = 0.5 + 0.25 * np.sin(7 * p[..., 0]) * np.cos(5 * p[..., 1]) + 0.2 * np.sin(11 * p[..., 0] + 3 * p[..., 1])
-        image = torch.tensor(np.repeat(tex[..., None], 3, -1))
-        views.append(View(i, cam, ct, image))
-        if i == 0:
-            depth_ref = torch.tensor(s)  # z of the reference camera (R = I)
-    return views, depth_ref
-
-
-def _plane_pair(tilt: float = 0.0) -> tuple[View, View, torch.Tensor]:
-    """Two views 0.3 apart along x of the plane of :func:`_plane_views`."""
-    (ref, nbr), depth = _plane_views(tilt)
-    return ref, nbr, depth
-
 
 def test_multiview_terms_of_k_neighbours_at_once_equal_one_at_a_time():
     xs = (0.3, -0.2, 0.15)
@@ -86,60 +58,7 @@ def test_lba_reprojection_returns_a_pixel_to_itself_with_exact_depth():
     assert float(ncc[0][0] / ncc[1][0]) < 5e-3
 
 
-def test_homography_ncc_is_about_one_on_the_true_plane_and_lower_on_a_wrong_one():
-    from eve3d.gaussians.losses import ncc_loss
-
-    ref, nbr, depth = _plane_pair(tilt=0.3)  # 6 px of disparity, a texture period of about 11 px
-    mask = torch.zeros_like(depth, dtype=torch.bool)
-    mask[4:-4, 4:-20] = True
-    scores = {}
-    for name, d in (("true", depth), ("20% far", depth * 1.2), ("50% far", depth * 1.5),
-                    ("untilted", torch.full_like(depth, float(depth.mean())))):
-        normal, distance = prior_plane(d, ref)
-        ncc, ok = (x[0] for x in ncc_loss(ref.grey, [nbr.grey], ref.cam, CameraStack([nbr.cam]), normal, distance,
-                                          mask.nonzero()[None]))
-        assert ok.float().mean() > 0.8
-        scores[name] = 1 - float(ncc[ok].mean())  # the mean NCC
-    assert scores["true"] > 0.999
-    assert scores["20% far"] < 0.9 and scores["50% far"] < 0.6 and scores["untilted"] < scores["true"] - 0.01, scores
-
-
-def test_a_neighbour_pixel_without_a_measured_depth_confirms_nothing():
-    from eve3d.gaussians.losses import depth_confirmation
-
-    xs = (0.3, -0.2)
-    (ref, *nbrs), depth = _plane_views(0.3, (0.0, *xs))
-    theirs = [_plane_views(0.3, (x,))[1] for x in xs]
-    cams = CameraStack([n.cam for n in nbrs])
-    confirm = lambda d, conf, tol=0.01: depth_confirmation(d, ref.grey, ref.cam, cams, theirs, conf,  # noqa: E731
-                                                           [n.grey for n in nbrs], tol)
-    everywhere = [torch.ones_like(d, dtype=torch.bool) for d in theirs]
-    agrees, ncc, flat = confirm(depth, everywhere)
-    assert agrees.shape == (2, *depth.shape) and agrees.float().mean() > 0.6 and not flat.any()
-    assert float(ncc[agrees].median()) > 0.95  # the photos agree where the depth is right
-    assert not confirm(depth, [~c for c in everywhere])[0].any()  # nothing measured: nothing confirmed
-    # measured only on the left half of each neighbour: a pixel that lands anywhere near the right half confirms nothing
-    left = [c.clone() for c in everywhere]
-    for c in left:
-        c[:, 32:] = False
-    agrees_left = confirm(depth, left)[0]
-    R, t = (x.to(depth.dtype) for x in (cams.R @ ref.cam.R.T, cams.t - (cams.R @ ref.cam.R.T) @ ref.cam.t))
-    uv, _ = cams.project(depth[..., None] * ref.cam.rays() @ R.transpose(1, 2)[:, None] + t[:, None, None])
-    assert agrees_left.any() and not agrees_left[uv[..., 0] > 31.5].any()
-    # 2 % too far: refuted at a 1 % tolerance, confirmed at 3 %, and the photos disagree
-    far = depth * 1.02
-    assert confirm(far, everywhere)[0].float().mean() < 0.05 and confirm(far, everywhere, 0.03)[0].float().mean() > 0.6
-    assert float(confirm(depth * 1.5, everywhere)[1][agrees].mean()) < float(ncc[agrees].mean()) - 0.3
-
-
 # -- priors reaching training -----------------------------------------------------------------
-
-def test_resampling_does_not_mix_valid_and_invalid_depths():
-    depth = np.array([[2.0, 2.0, 4.0, 0.0], [2.0, 0.0, 0.0, 0.0]], np.float32)
-    conf = np.array([[1, 1, 1, 0], [1, 1, 0, 0]], np.float32)
-    small, small_conf = resample_prior(depth, conf, 2, 1)
-    # left block: 3 valid depths of 2 → 2 (not 1.5 from the zero); right: 1 valid of 4 → invalid
-    assert small.tolist() == [[2.0, 0.0]] and small_conf.tolist() == [[1.0, 0.0]]
 
 
 @pytest.fixture(scope="module")
@@ -289,9 +208,8 @@ def test_checkpoint_from_other_priors_is_not_resumed(tiny_scene, tmp_path, noisy
 
 
 def test_eve3d_starts_from_points_on_the_prior_surface(tiny_scene, tmp_path, noisy_priors):
-    import open3d as o3d
-
     from eve3d.core.raycast import MeshRaycaster  # noqa: F401 (the GT mesh is read by open3d)
+    import open3d as o3d
 
     run = setup_joint(tiny_scene, tmp_path, _eve3d(init_prior_points=2000), noisy_priors)
     means = run.trainer.model.params["means"].detach().numpy()
@@ -424,3 +342,88 @@ def test_opacity_loss_spares_the_gaussians_on_the_confident_prior(tiny_scene, tm
     terms["opacity"].backward()
     grad = model.params["logit_opacities"].grad
     assert (grad[lowered] > 0).all() and (grad[~lowered] == 0).all()
+
+
+# -- pgsr: resuming, depth without bias --------------------------------------------------------
+
+def test_killed_run_resumes_to_the_same_parameters(tiny_scene, tmp_path, monkeypatch, one_thread):
+    settings = dict(exposure=True, exposure_lr=0.01)  # the per-image exposures are resumed too
+    train_joint(tiny_scene, tmp_path / "straight", joint_settings(**settings))
+    straight = GaussianModel.load_ply(tmp_path / "straight/point_cloud.ply")
+    assert not (tmp_path / "straight/checkpoint.pt").exists()  # removed once the outputs exist
+
+    save = Checkpoint.save
+
+    def save_then_die(self, state):
+        save(self, state)
+        if state.step == 50:
+            raise KeyboardInterrupt  # killed right after the second checkpoint
+
+    monkeypatch.setattr(Checkpoint, "save", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        train_joint(tiny_scene, tmp_path / "killed", joint_settings(**settings))
+    monkeypatch.setattr(Checkpoint, "save", save)
+    assert (tmp_path / "killed/checkpoint.pt").exists() and not (tmp_path / "killed/point_cloud.ply").exists()
+    train_joint(tiny_scene, tmp_path / "killed", joint_settings(**settings))
+    resumed = GaussianModel.load_ply(tmp_path / "killed/point_cloud.ply")
+    assert len(resumed) == len(straight)
+    for name, value in straight.params.items():
+        assert torch.allclose(resumed.params[name], value, atol=1e-5), name
+    assert (tmp_path / "killed/depth/000.npz").exists() and (tmp_path / "killed/previews/000.rgb.png").exists()
+
+
+@pytest.fixture(scope="module")
+def plane_dataset(tmp_path_factory):
+    """The ``plane`` kind, small: 12 views at 160×120 (exact poses, GT mesh)."""
+    from eve3d.synth import generate
+
+    from eve3d.core.io import load_scene
+    from eve3d.priors.oracle import priors_from_mesh
+
+    dataset = generate("plane", tmp_path_factory.mktemp("plane") / "plane", views=12, width=160, height=120)
+    priors_from_mesh(load_scene(dataset), dataset.parent / "exact", preview=False)  # its exact depth, once
+    return dataset
+
+
+def train_plane(dataset, out, **overrides):
+    """``pgsr`` at the ``cpu`` preset, briefly (300 steps, its schedule scaled down) and at
+    half the images' size (the preset's size when the bounds below were measured); returns
+    the accuracy of its rendered depth against the exact depth."""
+    from eve3d.config import job_config, stage_settings
+    from eve3d.core.io import load_scene
+    from eve3d.core.methods import methods
+    from eve3d.core.settings import JointSettings
+    from eve3d.joint import train_joint
+
+    brief = ["joint.iterations=300", "joint.dn_from=100", "joint.mv_from=100", "joint.checkpoint_every=0",
+             "joint.densify.refine_stop=250", "joint.previews=0", "train.resolution=0.5"]
+    config = job_config(None, brief + [f"train.{k}={v}" for k, v in overrides.items()])
+    settings = stage_settings(JointSettings, "joint", config, overrides=methods()["pgsr"].settings, method="pgsr")
+    scene = load_scene(dataset)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # bit-reproducible: summed over 2 threads, the balls' bias drew −0.20 … −0.35 %
+    try:
+        train_joint(scene, out / "pgsr", settings)
+    finally:
+        torch.set_num_threads(threads)
+    return depth_accuracy(out / "pgsr" / "depth", dataset.parent / "exact")
+
+
+@pytest.mark.slow
+def test_pgsr_on_a_plane_has_no_depth_bias(plane_dataset, tmp_path):
+    """The issue's bound: a textured plane 2 units away, trained briefly with ``pgsr`` at the
+    ``cpu`` preset: the rendered depth's median signed error within 0.1 % (measured +0.02 to
+    +0.06 % over seeds 0–3). Started from 3DGS's isotropic balls instead of discs
+    (``init_thickness: 1``), the same run renders the plane 0.3 % too near or more, on average
+    over seeds 0–3: the cause this guards against. One seed alone is not a measurement of it:
+    the balls' error moves with the split draws and with float rounding (seeds 0–3: −0.32,
+    −0.32, −0.30, −0.37 % before issue 21's vectorised compositing and C++ SSIM; −0.25, −0.52,
+    −0.25, −0.48 % after; the mean −0.33 and −0.38 %). At 3/4 of the images' size (the
+    ``cpu`` preset since issue 21) the balls drew −0.35, −0.37, −0.18, −0.29 %, the discs
+    stayed within 0.1 %."""
+    acc = train_plane(plane_dataset, tmp_path / "discs")
+    assert acc["density"] > 0.9
+    assert abs(acc["median_signed_error"]) < 0.001
+    balls = [train_plane(plane_dataset, tmp_path / f"balls{seed}", init_thickness=1.0, seed=seed)["median_signed_error"]
+             for seed in range(4)]
+    assert np.mean(balls) < -0.003, balls
