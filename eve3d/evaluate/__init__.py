@@ -143,12 +143,11 @@ DEFAULT_PROTOCOL: dict[str, str] = {fmt: p.name for p in PROTOCOLS.values() for 
 is given and a scene names none."""
 
 
-GROUND_TRUTH_INPUTS: dict[str, dict[str, str]] = {}
+GROUND_TRUTH_INPUTS: dict[str, dict[str, str]] = {
+    name: {p.name: p.config_inputs[name] for p in PROTOCOLS.values() if name in p.config_inputs}
+    for name in dict.fromkeys(name for p in PROTOCOLS.values() for name in p.config_inputs)}
 """Each ground-truth input of the protocols (an :class:`EvalInputs` field, and the CLI flag of
 ``eve3d evaluate``) → {protocol: the workflow scene's config key that gives it}."""
-for _protocol in PROTOCOLS.values():
-    for _name, _key in _protocol.config_inputs.items():
-        GROUND_TRUTH_INPUTS.setdefault(_name, {})[_protocol.name] = _key
 WITHOUT_GT = "nvs"
 """The default protocol of a scene whose format's protocol has none of its ground truth
 (a folder of photos): held-out views need nothing but the photos."""
