@@ -414,9 +414,11 @@ def _add_mesh_parsers(sub) -> None:
                (EvalSettings, "evaluate"), (MeshSettings, "mesh", ("min_confidence",)))
     s.description += " Protocols: " + "; ".join(f"{p.name}: {p.summary}" for p in PROTOCOLS.values())
     s.add_argument("--scene", required=True, help="dataset folder: cameras (visibility, alignment, masks, views)")
-    s.add_argument("--mesh", help="the reconstructed mesh (protocols synthetic, dtu, tnt)")
-    s.add_argument("--model", help="a trained point_cloud.ply (protocol nvs)")
-    s.add_argument("--out", required=True, help="metrics.json (tnt also writes precision.ply and recall.ply beside it)")
+    scoring = {what: ", ".join(p.name for p in PROTOCOLS.values() if p.scores == what) for what in ("mesh", "model")}
+    s.add_argument("--mesh", help=f"the reconstructed mesh (protocols {scoring['mesh']})")
+    s.add_argument("--model", help=f"a trained point_cloud.ply (protocols {scoring['model']})")
+    s.add_argument("--out", required=True, help="metrics.json (a mesh's protocol also writes precision.ply and "
+                                                "recall.ply beside it)")
     s.add_argument("--protocol", choices=list(PROTOCOLS),
                    help="default by dataset format when its ground truth is given: " + ", ".join(
                        f"{k} → {v}" for k, v in DEFAULT_PROTOCOL.items()) + f"; else {WITHOUT_GT}")
@@ -427,8 +429,9 @@ def _add_mesh_parsers(sub) -> None:
                                    "are added to the metrics")
     s.add_argument("--exact-depth", help="exact depth maps of the same views (results/SCENE/priors/oracle)")
     s.add_argument("--check", action="store_true",
-                   help="no reconstruction: check that the ground truth lines up with the scene's cameras (dtu, "
-                        "tnt), write what was measured to --out, fail with a message naming the file otherwise")
+                   help="no reconstruction: check that the ground truth lines up with the scene's cameras ("
+                        + ", ".join(p.name for p in PROTOCOLS.values() if p.check) + "), write what was measured to "
+                        "--out, fail with a message naming the file otherwise")
     s.add_argument("--scene-name")
     s.add_argument("--method")
 
@@ -479,6 +482,7 @@ def _add_bench_run_parsers(what) -> None:
     """``eve3d bench standin``, ``scale``, ``methods`` and ``real``: benchmarks that run stages."""
     from eve3d.core.datasets import BENCHMARKS
     from eve3d.synth import KINDS
+    from eve3d.tools.bench.scale import MEMORY_PROTOCOLS
 
     sd = what.add_parser("standin", help="a generated object written as a benchmark's download lays out one scene, "
                                          "with its ground-truth files: try or time a benchmark config without it")
@@ -493,7 +497,8 @@ def _add_bench_run_parsers(what) -> None:
                                        "at their memory targets, without training)")
     sc.add_argument("--memory", action="store_true",
                     help="no training: fuse the exact depth of VIEWS views at WIDTHxHEIGHT (default 300 at 1920x1080) "
-                         "and score fused meshes against --gt-points ground-truth points (synthetic, tnt, dtu)")
+                         "and score fused meshes against --gt-points ground-truth points ("
+                         + ", ".join(MEMORY_PROTOCOLS) + ")")
     sc.add_argument("--kind", choices=list(KINDS), default="room", help="the generated scene (default room)")
     sc.add_argument("--views", type=_positive, help="views of the generated scene (default 300)")
     sc.add_argument("--width", type=_positive, help="its image width (default 960; --memory: the depth maps', 1920)")
@@ -502,8 +507,8 @@ def _add_bench_run_parsers(what) -> None:
                                                    "schedule's other steps stay as configured (--set to move them)")
     sc.add_argument("--methods", nargs="+", metavar="METHOD", help="trained methods (default: pgsr eve3d)")
     sc.add_argument("--gt-points", type=_positive, help="--memory: ground-truth points (and synthetic samples), default 10M")
-    sc.add_argument("--protocols", nargs="+", choices=["synthetic", "tnt", "dtu"],
-                    help="--memory: the evaluations to run (default: all three)")
+    sc.add_argument("--protocols", nargs="+", choices=MEMORY_PROTOCOLS,
+                    help="--memory: the evaluations to run (default: all)")
     sc.add_argument("--work", help="folder for the generated data, outputs and each stage's log (kept; new or empty); "
                                    "default a temporary folder")
     _config_arguments(sc)

@@ -4,7 +4,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from eve3d.core.chunking import chunks
 from eve3d.core.colormap import hot_r
@@ -19,6 +18,8 @@ def nearest_distances(query: np.ndarray, reference: np.ndarray, upper_bound: flo
     points at a time (:mod:`eve3d.core.chunking`)."""
     if not len(reference):
         return np.full(len(query), np.inf)
+    from scipy.spatial import cKDTree  # here: every command imports the protocols, only scoring needs scipy
+
     tree = cKDTree(reference)
     out = np.empty(len(query))
     for part in chunks(len(query), chunk):

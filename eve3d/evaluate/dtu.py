@@ -12,14 +12,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from eve3d.core import chunking
 from eve3d.core.chunking import chunks
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
 from eve3d.core.scene import Camera, Scene
-from eve3d.evaluate import EvalInputs
+from eve3d.evaluate.protocol import EvalInputs, Protocol
 from eve3d.evaluate.common import nearest_distances, write_error_maps
 
 MASK_DILATION = 24
@@ -175,6 +174,8 @@ def radius_thin(points: np.ndarray, radius: float, rng: np.random.Generator) -> 
     """DTUeval-python's greedy thinning: in random order, keep a point and drop every other
     point within ``radius`` of it (neighbours looked up a chunk of points at a time)."""
     points = points[rng.permutation(len(points))]
+    from scipy.spatial import cKDTree  # here: every command imports the protocols, only scoring needs scipy
+
     tree = cKDTree(points)
     keep = np.ones(len(points), dtype=bool)
     for part in chunks(len(points), max(1, chunking.CHUNK // 5)):  # Python lists: ~300 bytes a point
@@ -218,3 +219,8 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     acc, comp = float(near_d2s.mean()), float(near_s2d.mean())
     return {"accuracy": acc, "completeness": comp, "chamfer": (acc + comp) / 2,
             "n_recon": int(len(data_in_obs)), "n_gt": int(len(stl_above)), **maps}
+
+
+PROTOCOL = Protocol("dtu", "DTUeval-python: mask culling, 0.2 mm sampling, ObsMask crop, Chamfer in mm",
+                    "mesh", evaluate_dtu, {"gt": "dtu.stl", "obs_mask": "dtu.obs_mask", "plane": "dtu.plane"},
+                    formats=("dtu",), default_of=("dtu",), unit="mm", check=check_alignment)

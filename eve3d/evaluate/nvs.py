@@ -13,7 +13,10 @@ import json
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.layout import HELD_OUT_DIR, TRAIN_METRICS_FILE
-from eve3d.evaluate import PROTOCOLS, EvalInputs
+from eve3d.evaluate.protocol import EvalInputs, Protocol
+
+HOLDOUT = 8
+"""Every 8th view is held out (Mip-NeRF 360's convention)."""
 
 RENDER_KEYS = ("resolution", "max_side", "background", "antialiased", "backend", "device")
 """Training settings that change what a view renders to."""
@@ -26,21 +29,24 @@ def evaluate_views(inputs: EvalInputs) -> dict:
     from eve3d.gaussians.view_report import view_metrics
     from eve3d.gaussians.views import Views, pick_device
 
-    holdout = PROTOCOLS["nvs"].joint_settings["holdout"]
     model_path = inputs.reconstruction
     record = model_path.parent / TRAIN_METRICS_FILE
     try:
         trained = json.loads(record.read_text())["settings"]
     except (OSError, ValueError, KeyError) as e:
         raise Eve3dError(f"{record}: the nvs protocol reads the training settings from here ({e})") from None
-    if trained.get("holdout") != holdout:
+    if trained.get("holdout") != HOLDOUT:
         raise Eve3dError(f"{model_path}: trained with holdout {trained.get('holdout')}, so the views the nvs protocol "
-                         f"scores (every {holdout}th) were training views; train with joint.holdout: {holdout} "
+                         f"scores (every {HOLDOUT}th) were training views; train with joint.holdout: {HOLDOUT} "
                          f"(the workflow does so for scenes with protocol: nvs)")
     render = {k: tuple(v) if isinstance(v, list) else v for k, v in trained.items() if k in RENDER_KEYS}
-    settings = TrainSettings(holdout=holdout, **render)
+    settings = TrainSettings(holdout=HOLDOUT, **render)
     device = pick_device(settings.device)
-    views = Views.load(inputs.scene, settings, holdout, device)
+    views = Views.load(inputs.scene, settings, HOLDOUT, device)
     model = GaussianModel.load_ply(model_path).to(device)
     held = view_metrics(model, views, views.test_ids, settings, inputs.out.parent / HELD_OUT_DIR)
-    return {**held, "resolution": settings.resolution, "max_side": settings.max_side, "holdout": holdout}
+    return {**held, "resolution": settings.resolution, "max_side": settings.max_side, "holdout": HOLDOUT}
+
+
+PROTOCOL = Protocol("nvs", f"held-out views (every {HOLDOUT}th, Mip-NeRF 360): PSNR and SSIM of the rendered "
+                    "model", "model", evaluate_views, joint_settings={"holdout": HOLDOUT})

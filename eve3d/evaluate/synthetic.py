@@ -27,7 +27,7 @@ from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
 from eve3d.core.raycast import MeshRaycaster, seen_counts
 from eve3d.core.surface import sample_surface
-from eve3d.evaluate import GIVEN_TAU, EvalInputs
+from eve3d.evaluate.protocol import GIVEN_TAU, EvalInputs, Protocol
 from eve3d.evaluate.common import COLOUR_RANGE, distance_metrics, mesh_distances, write_error_maps
 
 MAX_DRAWS = 8
@@ -84,3 +84,8 @@ def evaluate_synthetic(inputs: EvalInputs) -> dict:
             "visible_gt_fraction": visible_fraction, "visible_rule": f"seen by at least {s.min_views} camera(s)",
             "crop": {"box_min": (lo - tau).tolist(), "box_max": (hi + tau).tolist(),
                      "rule": "visible-GT bounding box grown by tau", "recon_area_fraction_left_out": 1 - inside_fraction}}
+
+
+PROTOCOL = Protocol("synthetic", "GT mesh: visible GT surface, exact point-to-triangle distances, F-score at τ",
+                    "mesh", evaluate_synthetic, {"gt": "gt_mesh"}, default_of=("colmap",), own_poses=True,
+                    unit="scene units")

@@ -29,7 +29,7 @@ import numpy as np
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
 from eve3d.core.scene import Scene
-from eve3d.evaluate import GIVEN_TAU, EvalInputs
+from eve3d.evaluate.protocol import GIVEN_TAU, EvalInputs, Protocol
 from eve3d.evaluate.common import COLOUR_RANGE, fscore, nearest_distances, write_error_maps
 
 TAU: dict[str, float] = {"Barn": 0.01, "Caterpillar": 0.005, "Church": 0.025, "Courthouse": 0.025,
@@ -296,3 +296,8 @@ def evaluate_tnt(inputs: EvalInputs) -> dict:
             "n_recon": len(result.recon.points), "n_gt": len(result.gt.points),
             "transformation": transform.tolist(),   # ours → GT frame
             "alignment_rmse": float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))}
+
+
+PROTOCOL = Protocol("tnt", "Tanks and Temples toolbox: trajectory alignment, ICP, polygon crop, F-score at τ",
+                    "mesh", evaluate_tnt, formats=("tnt",), default_of=("tnt",), own_poses=True, unit="m",
+                    check=check_alignment)

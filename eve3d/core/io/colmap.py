@@ -43,6 +43,14 @@ def find_colmap_model(root: Path) -> Path | None:
     return None
 
 
+def colmap_model(root: Path) -> Path:
+    """:func:`find_colmap_model`, or an error saying how to make one."""
+    model = find_colmap_model(root)
+    if model is None:
+        raise Eve3dError(f"{root}: no poses (no cameras.npz, no COLMAP model in sparse/0): run `eve3d sfm` first")
+    return model
+
+
 def model_file(model_dir: Path, what: str) -> Path:
     """The file of a model that holds ``what`` ('cameras', 'images', 'points3D')."""
     binary = model_dir / f"{what}.bin"

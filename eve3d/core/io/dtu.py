@@ -20,6 +20,7 @@ import numpy as np
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import check_image, list_images
+from eve3d.core.io.loader import DatasetFormat
 from eve3d.core.scene import Camera, Scene
 
 
@@ -90,3 +91,6 @@ def _read_model(model: Path, image_dir: Path, npz_cameras: list[Camera], check_i
                              f"{np.linalg.norm(cam.center - ref.center):.3g} from its cameras.npz pose (the unit "
                              f"sphere's frame); the model and cameras.npz must describe the same normalised frame")
     return scene
+
+
+FORMAT = DatasetFormat("dtu", lambda root: (root / "cameras.npz").exists(), read_dtu)

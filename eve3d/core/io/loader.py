@@ -1,15 +1,16 @@
 """Recognise a dataset's layout and read it into a ``Scene``."""
 from __future__ import annotations
 
+import functools
+import importlib
 import json
+import pkgutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.io.colmap import find_colmap_model, read_colmap
-from eve3d.core.io.dtu import read_dtu
-from eve3d.core.io.tnt import read_tnt, tnt_name
+from eve3d.core.io.colmap import colmap_model, find_colmap_model, read_colmap
 from eve3d.core.scene import Scene
 
 METADATA = "eve3d_scene.json"
@@ -21,21 +22,10 @@ def has_poses(root: Path) -> bool:
     return (root / "cameras.npz").exists() or find_colmap_model(root) is not None
 
 
-def _model(root: Path) -> Path:
-    model = find_colmap_model(root)
-    if model is None:
-        raise Eve3dError(f"{root}: no poses (no cameras.npz, no COLMAP model in sparse/0): run `eve3d sfm` first")
-    return model
-
-
-def _read_colmap(root: Path, check_images: bool) -> Scene:
-    scene = read_colmap(_model(root), root / "images", root=root, check_images=check_images)
-    scene.extras["format"] = "colmap"
-    return scene
-
-
 @dataclass(frozen=True)
 class DatasetFormat:
+    """A dataset layout: a reader module declares its own as ``FORMAT``."""
+
     name: str
     detect: Callable[[Path], bool]
     """Whether a dataset folder is laid out in this format."""
@@ -43,27 +33,38 @@ class DatasetFormat:
     """(folder, check_images) → the scene, its ``extras["format"]`` this format's name."""
 
 
-FORMATS: tuple[DatasetFormat, ...] = (
-    DatasetFormat("dtu", lambda root: (root / "cameras.npz").exists(), read_dtu),
-    DatasetFormat("tnt", lambda root: bool(tnt_name(root)), lambda root, check: read_tnt(root, _model(root), check)),
-    DatasetFormat("colmap", lambda root: True, _read_colmap),
-)
-"""The dataset layouts, tried in this order: ``dtu`` (``cameras.npz``), ``tnt`` (a
-``{Scene}_trans.txt`` beside the images), else ``colmap`` (a COLMAP model, or images that SfM
-will pose)."""
+def _read_colmap(root: Path, check_images: bool) -> Scene:
+    scene = read_colmap(colmap_model(root), root / "images", root=root, check_images=check_images)
+    scene.extras["format"] = "colmap"
+    return scene
+
+
+COLMAP = DatasetFormat("colmap", lambda root: True, _read_colmap)
+"""The layout of any other folder: a COLMAP model, or images that SfM will pose."""
+
+
+@functools.cache
+def formats() -> tuple[DatasetFormat, ...]:
+    """The dataset layouts, tried in this order: the ``FORMAT`` that each module of this
+    package declares (``dtu``: a ``cameras.npz``; ``tnt``: a ``{Scene}_trans.txt`` beside the
+    images), by module name, then :data:`COLMAP`. Read when first needed: the readers import
+    this module for :class:`DatasetFormat`."""
+    names = (info.name for info in pkgutil.iter_modules([str(Path(__file__).parent)]))
+    modules = (importlib.import_module(f"{__package__}.{name}") for name in names)
+    return (*(module.FORMAT for module in modules if hasattr(module, "FORMAT")), COLMAP)
 
 
 def _format(root: Path) -> DatasetFormat:
-    return next(f for f in FORMATS if f.detect(root))
+    return next(f for f in formats() if f.detect(root))
 
 
 def dataset_format(root: Path) -> str:
-    """The name of the :data:`FORMATS` row that ``root`` is laid out in."""
+    """The name of the format (:func:`formats`) that ``root`` is laid out in."""
     return _format(Path(root)).name
 
 
 def load_scene(root: str | Path, check_images: bool = True) -> Scene:
-    """Read the posed dataset in ``root`` (any of :data:`FORMATS`)."""
+    """Read the posed dataset in ``root`` (any of :func:`formats`)."""
     root = Path(root)
     if not root.is_dir():
         raise Eve3dError(f"{root}: dataset folder not found")

@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.io.colmap import read_colmap
+from eve3d.core.io.colmap import colmap_model, read_colmap
+from eve3d.core.io.loader import DatasetFormat
+from eve3d.core.scene import Scene
 
 
 def read_log_trajectory(path: Path) -> list[np.ndarray]:
@@ -45,13 +47,13 @@ GROUND_TRUTH_FILES = {"gt_points": ".ply", "crop": ".json", "trans": "_trans.txt
 (``Scene.extras`` keys)."""
 
 
-def read_tnt(root: Path, model_dir: Path, check_images: bool = True):
+def read_tnt(root: Path, check_images: bool = True) -> Scene:
     name = tnt_name(root)
     files = {k: root / f"{name}{suffix}" for k, suffix in GROUND_TRUTH_FILES.items()}
     missing = [str(p) for p in files.values() if not p.is_file()]
     if missing:
         raise Eve3dError(f"{root}: Tanks and Temples ground-truth files missing: {', '.join(missing)}")
-    scene = read_colmap(model_dir, root / "images", root=root, check_images=check_images)
+    scene = read_colmap(colmap_model(root), root / "images", root=root, check_images=check_images)
     try:
         trans = np.loadtxt(files["trans"]).reshape(4, 4)
     except ValueError as e:
@@ -60,3 +62,6 @@ def read_tnt(root: Path, model_dir: Path, check_images: bool = True):
     scene.extras.update(files, format="tnt", name=name, alignment=trans,
                         gt_trajectory=read_log_trajectory(files["trajectory"]))
     return scene
+
+
+FORMAT = DatasetFormat("tnt", lambda root: bool(tnt_name(root)), read_tnt)

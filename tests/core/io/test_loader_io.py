@@ -30,3 +30,17 @@ def test_the_layout_is_told_by_its_files_and_the_metadata_is_read(tmp_path):
     assert dataset_format(tmp_path) == "tnt"
     (tmp_path / "cameras.npz").write_bytes(b"")
     assert dataset_format(tmp_path) == "dtu"  # cameras.npz first, whatever else lies beside it
+
+
+def test_the_formats_are_what_the_readers_declare_and_colmap_comes_last():
+    """A reader adds its layout by declaring ``FORMAT`` in its module: nothing else lists it."""
+    import importlib
+    import pkgutil
+
+    import eve3d.core.io as package
+    from eve3d.core.io.loader import COLMAP, formats
+
+    modules = [importlib.import_module(f"eve3d.core.io.{m.name}") for m in pkgutil.iter_modules(package.__path__)]
+    declared = [m.FORMAT for m in modules if hasattr(m, "FORMAT")]
+    assert [f.name for f in formats()] == ["dtu", "tnt", "colmap"] and formats() == (*declared, COLMAP)
+    assert len({f.name for f in formats()}) == len(formats())
