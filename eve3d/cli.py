@@ -45,16 +45,16 @@ def _naming_flags(a: argparse.Namespace, build: Callable[[], Any]) -> Any:
 
 def _cmd_synth(a: argparse.Namespace) -> None:
     from eve3d.core.settings import SyntheticSettings
-    from eve3d.synth import run
+    from eve3d.synth import run_synth
 
-    run(_settings(a, SyntheticSettings, "synthetic"), kind=a.kind, out=a.out, images_only=a.images_only)
+    run_synth(_settings(a, SyntheticSettings, "synthetic"), kind=a.kind, out=a.out, images_only=a.images_only)
 
 
 def _cmd_sfm(a: argparse.Namespace) -> None:
     from eve3d.core.settings import SfmSettings
-    from eve3d.sfm import run
+    from eve3d.sfm import run_sfm
 
-    run(_settings(a, SfmSettings, "sfm"), dataset=a.dataset, out=a.out)
+    run_sfm(_settings(a, SfmSettings, "sfm"), dataset=a.dataset, out=a.out)
 
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
@@ -83,46 +83,47 @@ def _cmd_export_stereo(a: argparse.Namespace) -> None:
 
 def _cmd_pretrain(a: argparse.Namespace) -> None:
     from eve3d.core.settings import PretrainSettings
-    from eve3d.pretrain import run
+    from eve3d.pretrain import run_pretrain
 
-    run(_settings(a, PretrainSettings, "pretrain"), scene=a.scene, out=a.out)
+    run_pretrain(_settings(a, PretrainSettings, "pretrain"), scene=a.scene, out=a.out)
 
 
 def _cmd_joint(a: argparse.Namespace) -> None:
     from eve3d.config import method_settings
-    from eve3d.joint import run
+    from eve3d.joint import run_joint
 
     config = _config(a)
-    run(_naming_flags(a, lambda: method_settings(a.method, config, "--method")), scene=a.scene, out=a.out,
-        priors=a.priors)
+    run_joint(_naming_flags(a, lambda: method_settings(a.method, config, "--method")), scene=a.scene, out=a.out,
+              priors=a.priors)
 
 
 def _cmd_mesh(a: argparse.Namespace) -> None:
     from eve3d.core.settings import MeshSettings
-    from eve3d.mesh import run
+    from eve3d.mesh import run_mesh
 
-    run(_settings(a, MeshSettings, "mesh"), scene=a.scene, depth=a.depth, out=a.out, kind=a.kind)
+    run_mesh(_settings(a, MeshSettings, "mesh"), scene=a.scene, depth=a.depth, out=a.out, kind=a.kind)
 
 
 def _cmd_evaluate(a: argparse.Namespace) -> None:
     from eve3d.core.settings import EvalSettings, MeshSettings
-    from eve3d.evaluate import GROUND_TRUTH_INPUTS, check, run
+    from eve3d.evaluate import GROUND_TRUTH_INPUTS, run_evaluate, run_ground_truth_check
 
     config = _config(a)
     settings = _settings(a, EvalSettings, "evaluate", config)
     paths = dict(scene=a.scene, out=a.out, protocol=a.protocol,
                  ground_truth={name: getattr(a, name) for name in GROUND_TRUTH_INPUTS})
     if a.check:
-        check(settings, **paths)
+        run_ground_truth_check(settings, **paths)
         return
-    run(settings, _settings(a, MeshSettings, "mesh", config), **paths, mesh=a.mesh, model=a.model, depth=a.depth, exact_depth=a.exact_depth,
-        row={"scene": a.scene_name, "method": a.method} if a.scene_name else None)
+    run_evaluate(settings, _settings(a, MeshSettings, "mesh", config), **paths, mesh=a.mesh, model=a.model,
+                 depth=a.depth, exact_depth=a.exact_depth,
+                 row={"scene": a.scene_name, "method": a.method} if a.scene_name else None)
 
 
 def _cmd_profile(a: argparse.Namespace) -> None:
-    from eve3d.tools.profile import run
+    from eve3d.tools.profile import run_profile
 
-    run(log=a.log, workdir=a.workdir, markdown=a.markdown)
+    run_profile(log=a.log, workdir=a.workdir, markdown=a.markdown)
 
 
 def _cmd_summary(a: argparse.Namespace) -> None:
@@ -136,55 +137,56 @@ def _cmd_summary(a: argparse.Namespace) -> None:
 
 def _cmd_report(a: argparse.Namespace) -> None:
     from eve3d.core.settings import StereoSettings
-    from eve3d.report import run
+    from eve3d.report import run_report
 
     config = _config(a)
-    run(_settings(a, StereoSettings, "stereo", config), config.get("benchmark"), results=a.results, out=a.out,
-        datasets=dict(a.dataset), ground_truth=dict(a.gt))
+    run_report(_settings(a, StereoSettings, "stereo", config), config.get("benchmark"), results=a.results,
+               out=a.out, datasets=dict(a.dataset), ground_truth=dict(a.gt))
 
 
 def _cmd_bench_rasterizer(a: argparse.Namespace) -> None:
     from eve3d.tools.bench import rasterizer
 
-    rasterizer.run(a.sizes or rasterizer.RASTERIZER_SIZES, a.backend, a.repeats, a.json)
+    rasterizer.run_bench_rasterizer(a.sizes or rasterizer.RASTERIZER_SIZES, a.backend, a.repeats, a.json)
 
 
 def _cmd_bench_training(a: argparse.Namespace) -> None:
     from eve3d.tools.bench import training
 
-    training.run(_config(a), a.stages or training.TRAINING_STAGES, a.steps, a.warmup, a.gaussians, a.start, a.json)
+    training.run_bench_training(_config(a), a.stages or training.TRAINING_STAGES, a.steps, a.warmup, a.gaussians,
+                            a.start, a.json)
 
 
 def _cmd_bench_stereo(a: argparse.Namespace) -> None:
     from eve3d.tools.bench import stereo
 
-    stereo.run(a.priors, a.scene, a.json)
+    stereo.run_bench_stereo(a.priors, a.scene, a.json)
 
 
 def _cmd_bench_evaluate(a: argparse.Namespace) -> None:
     from eve3d.tools.bench import evaluate
 
-    evaluate.run(a.meshes, a.scene, a.gt, a.json)
+    evaluate.run_bench_evaluate(a.meshes, a.scene, a.gt, a.json)
 
 
 def _cmd_bench_methods(a: argparse.Namespace) -> None:
     from eve3d.tools.bench import methods
 
-    (methods.run_real if a.benchmark == "real" else methods.run)(a.config, a.cores, a.report_only, a.json)
+    methods.run_bench_workflow(a.benchmark, a.config, a.cores, a.report_only, a.json)
 
 
 def _cmd_bench_standin(a: argparse.Namespace) -> None:
     from eve3d.tools import standin
 
-    standin.run(a.benchmark, a.root, a.views, a.width, a.height)
+    standin.run_bench_standin(a.benchmark, a.root, a.views, a.width, a.height)
 
 
 def _cmd_bench_scale(a: argparse.Namespace) -> None:
     from eve3d.tools.bench import scale
 
-    scale.run(a.config, a.set, memory=a.memory, kind=a.kind, size=(a.views, a.width, a.height),
-              iterations=a.iterations, methods=a.methods, gt_points=a.gt_points, protocols=a.protocols,
-              work=a.work, as_json=a.json)
+    scale.run_bench_scale(a.config, a.set, memory=a.memory, kind=a.kind, size=(a.views, a.width, a.height),
+                      iterations=a.iterations, methods=a.methods, gt_points=a.gt_points, protocols=a.protocols,
+                      work=a.work, as_json=a.json)
 
 
 # -- argument types: a wrong value is argparse's error, naming the flag ----------------------
@@ -361,7 +363,10 @@ def _add_stereo_parsers(sub) -> None:
                (StereoSettings, "stereo", ("backend",)), (SgbmSettings, "stereo"), (MatchCheck, "stereo"))
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--out", required=True, help="output folder (replaced atomically)")
-    by_input = lambda reads: ", ".join(b.name for b in PRIOR_BACKENDS.values() if b.reads == reads)  # noqa: E731
+
+    def by_input(reads):
+        return ", ".join(b.name for b in PRIOR_BACKENDS.values() if b.reads == reads)
+
     s.add_argument("--gt-mesh", help=f"{by_input('gt_mesh')}: the mesh (default: the scene's own GT mesh)")
     s.add_argument("--stereo", help=f"{by_input('pairs')}: the output folder of `eve3d stereo-render`")
     s.add_argument("--no-preview", action="store_true")

@@ -122,7 +122,10 @@ def scene_protocol(name: str, scene: dict):
 
     # A generated scene is a COLMAP dataset with exact poses that does not exist yet.
     fmt = "colmap" if "synthetic" in scene else dataset_format(Path(scene["path"]))
-    given = lambda key: scene_value(scene, key) is not None or (key == "gt_mesh" and has_gt_mesh(scene))  # noqa: E731
+
+    def given(key):
+        return scene_value(scene, key) is not None or (key == "gt_mesh" and has_gt_mesh(scene))
+
     protocol = protocol_for(scene.get("protocol"), fmt, f"scenes.{name}.protocol", given)
     where = f"scenes.{name} (protocol {protocol.name})"
     if protocol.formats and fmt not in protocol.formats:

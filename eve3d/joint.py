@@ -331,7 +331,7 @@ def train_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
     return trainer.finish(out_dir, record, depth_kind, save_depths)
 
 
-def run(settings: JointSettings, *, scene: Path, out: Path, priors: Path | None = None) -> None:
+def run_joint(settings: JointSettings, *, scene: Path, out: Path, priors: Path | None = None) -> None:
     """The ``joint`` stage: train ``settings.method`` on the posed dataset ``scene`` into ``out``."""
     from eve3d.core.io import load_scene
 

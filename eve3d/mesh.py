@@ -205,7 +205,10 @@ def slabs(plan: GridPlan, depth_dir: Path) -> tuple[int, list[tuple[int, int]]]:
     axis = int(np.argmax(keys.max(0) - keys.min(0)))
     lo = int(keys[:, axis].min())
     layers = np.bincount(keys[:, axis] - lo)
-    held = lambda a, b: int(layers[max(a - 1, 0):b + 1].sum())  # noqa: E731  (layers a-1 … b, as offsets)
+
+    def held(a, b):  # layers a-1 … b, as offsets
+        return int(layers[max(a - 1, 0):b + 1].sum())
+
     ranges, a = [], 0
     while a < len(layers):
         b = a + 1
@@ -288,7 +291,9 @@ def fuse(scene: Scene, depth_dir: Path, settings: MeshSettings | None = None):
     axis, ranges = slabs(plan, depth_dir) if len(plan.blocks) else (0, [])
     fused_views, parts = set(), []
     for k, (a, b) in enumerate(ranges):
-        near = lambda c: (c[..., axis] >= a - 1) & (c[..., axis] <= b)  # noqa: E731  (the slab and its margin)
+        def near(c):  # the slab and its margin
+            return (c[..., axis] >= a - 1) & (c[..., axis] <= b)
+
         held = int(near(plan.blocks).sum())
         seen = [cam for cam in scene.cameras if cam.view_id in plan.reach and
                 plan.reach[cam.view_id][0, axis] <= b and plan.reach[cam.view_id][1, axis] >= a - 1]
@@ -469,7 +474,7 @@ def write_mesh_views(mesh, scene: Scene, out_dir: Path, size: int = 640) -> list
     return paths
 
 
-def run(settings: MeshSettings, *, scene: Path, depth: Path, out: Path, kind: str | None = None) -> None:
+def run_mesh(settings: MeshSettings, *, scene: Path, depth: Path, out: Path, kind: str | None = None) -> None:
     """The ``mesh`` stage: fuse the maps in ``depth`` over ``scene``'s cameras into ``out``,
     with shaded views of it beside (``kind`` overrides the scene's kind)."""
     from eve3d.core.io import load_scene

@@ -131,7 +131,7 @@ def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:
     return trainer.finish(out_dir, record, "depth_expected", save_tone)
 
 
-def run(settings: PretrainSettings, *, scene: Path, out: Path) -> None:
+def run_pretrain(settings: PretrainSettings, *, scene: Path, out: Path) -> None:
     """The ``pretrain`` stage: the posed dataset ``scene`` to a model in ``out``."""
     from eve3d.core.io import load_scene
 

@@ -22,11 +22,12 @@ from eve3d.core.settings import SfmSettings
 from eve3d.core.timing import phase
 
 
-def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Path:
-    """Reconstruct (or only undistort) ``dataset`` into ``out``; returns ``out``."""
+def run_sfm(settings: SfmSettings, *, dataset: Path, out: Path) -> None:
+    """The ``sfm`` stage: ``dataset``'s photos reconstructed (or a model given with them only
+    undistorted) into an undistorted model in ``out``."""
     pycolmap = import_pycolmap()
 
-    settings = settings or SfmSettings()
+    dataset, out = Path(dataset), Path(out)
     image_dir = dataset / "images"
     photos = scan_photos(image_dir)
     with atomic_dir(out) as tmp:
@@ -48,7 +49,7 @@ def run_sfm(dataset: Path, out: Path, settings: SfmSettings | None = None) -> Pa
             kind = json.loads((dataset / METADATA).read_text()).get("kind")
             if kind:
                 (tmp / METADATA).write_text(json.dumps({"kind": kind}, indent=2))
-    return out
+    print(f"wrote {out}")
 
 
 def _reconstruct(photos: list[Path], work: Path, settings: SfmSettings) -> Path:
@@ -99,9 +100,3 @@ def _reconstruct(photos: list[Path], work: Path, settings: SfmSettings) -> Path:
     model_dir = work / "sparse" / str(best_id)
     best.write_binary(str(model_dir))
     return model_dir
-
-
-def run(settings: SfmSettings, *, dataset: Path, out: Path) -> None:
-    """The ``sfm`` stage: ``dataset``'s photos to an undistorted model in ``out``."""
-    run_sfm(Path(dataset), Path(out), settings)
-    print(f"wrote {out}")

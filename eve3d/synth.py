@@ -399,7 +399,7 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
     return out
 
 
-def run(settings: SyntheticSettings, *, kind: str, out: Path, images_only: bool = False) -> None:
+def run_synth(settings: SyntheticSettings, *, kind: str, out: Path, images_only: bool = False) -> None:
     """The ``synth`` stage: the generated scene ``kind``, sized by ``settings``, into ``out``."""
     with phase("generate"):
         generate(kind, Path(out), views=settings.views, width=settings.width, height=settings.height,

@@ -4,12 +4,16 @@
 ``start-up`` is the time from the process's start to the first phase: the interpreter, the
 imports the stage's command made and reading its settings. Phases do not overlap: a phase
 opened inside another pauses the outer one. Time outside every phase is ``other``.
+
+The parts of a training step (:func:`step_part`) are another, finer clock: a plain call
+unless ``eve3d bench training`` installs its timer (:func:`timing_step_parts`).
 """
 from __future__ import annotations
 
+import functools
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 PREFIX = "timing:"
@@ -102,3 +106,31 @@ def parse(line: str) -> dict[str, float] | None:
         out[name] = float(value)
     out["total"] = float(total.split()[0])
     return out
+
+
+PartTimer = Callable[[str, Callable, tuple, dict], object]
+"""(part, function, args, kwargs) → what the function returns, timed."""
+_part_timer: PartTimer | None = None
+
+
+def step_part(part: str) -> Callable[[Callable], Callable]:
+    """Mark a function as the ``part`` of a training step that ``eve3d bench training``
+    charges it to (its ``STEP_PARTS``): a plain call unless a timer is installed."""
+    def mark(fn: Callable) -> Callable:
+        @functools.wraps(fn)
+        def call(*args, **kwargs):
+            timer = _part_timer
+            return fn(*args, **kwargs) if timer is None else timer(part, fn, args, kwargs)
+        return call
+    return mark
+
+
+@contextmanager
+def timing_step_parts(timer: PartTimer) -> Iterator[None]:
+    """Route every :func:`step_part` call through ``timer`` inside the block."""
+    global _part_timer
+    outer, _part_timer = _part_timer, timer
+    try:
+        yield
+    finally:
+        _part_timer = outer

@@ -74,8 +74,8 @@ def _inputs(scene: Path, protocol: str | None, ground_truth: Mapping[str, Path |
     return chosen, loaded, {k: Path(v) if v else None for k, v in ground_truth.items()}
 
 
-def check(settings: EvalSettings, *, scene: Path, out: Path, protocol: str | None = None,
-          ground_truth: Mapping[str, Path | None]) -> None:
+def run_ground_truth_check(settings: EvalSettings, *, scene: Path, out: Path,
+                           protocol: str | None = None, ground_truth: Mapping[str, Path | None]) -> None:
     """The ``check_ground_truth`` rule: that the ground truth (:class:`EvalInputs` fields
     ``gt``, ``obs_mask``, ``plane``) lines up with ``scene``'s cameras, written to ``out``;
     ``settings.ground_truth_check`` says whether a misfit fails, warns or is not looked for."""
@@ -100,9 +100,10 @@ def check(settings: EvalSettings, *, scene: Path, out: Path, protocol: str | Non
         tmp.write_text(json.dumps(checked, indent=2))
 
 
-def run(settings: EvalSettings, mesh_settings: MeshSettings, *, scene: Path, out: Path, protocol: str | None = None,
-        ground_truth: Mapping[str, Path | None], mesh: Path | None = None, model: Path | None = None,
-        depth: Path | None = None, exact_depth: Path | None = None, row: Mapping[str, str] | None = None) -> None:
+def run_evaluate(settings: EvalSettings, mesh_settings: MeshSettings, *, scene: Path, out: Path,
+                 protocol: str | None = None, ground_truth: Mapping[str, Path | None], mesh: Path | None = None,
+                 model: Path | None = None, depth: Path | None = None, exact_depth: Path | None = None,
+                 row: Mapping[str, str] | None = None) -> None:
     """The ``evaluate`` stage: score ``mesh`` (or the trained ``model``, as the protocol asks)
     against the ground truth into ``out`` (metrics.json), with the accuracy of the ``depth``
     maps it fused against ``exact_depth`` (the pixels ``mesh_settings`` fuses,

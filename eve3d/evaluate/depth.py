@@ -84,7 +84,10 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
             weak_known += int((has & weak).sum())
     err = np.concatenate(errors)  # float32, as the maps: a float64 copy of every pixel would double it
     del errors
-    stat = lambda f: float(f(err)) if len(err) else None  # noqa: E731  (None: no pixel to score, valid JSON)
+
+    def stat(f):  # None: no pixel to score, valid JSON
+        return float(f(err)) if len(err) else None
+
     # np.float64 thresholds: a Python float would be compared in float32
     return {"data": label or str(maps_dir), "median_signed_error": stat(median),
             "median_rel_error": stat(lambda e: median(np.abs(e))), "density": confident / max(known, 1),

@@ -135,7 +135,10 @@ class GaussianModel:
             quats[planar] = frame_quats[planar]
             log_scales[planar, 2] += math.log(thickness)
         rgb = np.full((n, 3), 0.5) if colors is None else np.asarray(colors, dtype=np.float64)
-        f32 = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
+
+        def f32(a):
+            return torch.tensor(a, dtype=torch.float32)
+
         params = {
             "means": f32(points),
             "quats": f32(quats),
@@ -205,7 +208,10 @@ def read_ply(path: Path) -> tuple[dict[str, torch.Tensor], int]:
     missing = [name for name in need if name not in col]
     if missing:
         raise Eve3dError(f"{path}: missing 3DGS properties {', '.join(missing)}")
-    take = lambda keys: torch.from_numpy(data[:, [col[k] for k in keys]].copy())  # noqa: E731
+
+    def take(keys):
+        return torch.from_numpy(data[:, [col[k] for k in keys]].copy())
+
     rest = sorted((k for k in col if k.startswith("f_rest_")), key=lambda k: int(k.split("_")[-1]))
     k_rest = len(rest) // 3
     degree = round(math.sqrt(k_rest + 1)) - 1

@@ -22,6 +22,7 @@ import torch
 from eve3d.core.fileio import atomic_path
 from eve3d.core.scene import Scene
 from eve3d.core.settings import TrainSettings
+from eve3d.core.timing import step_part
 from eve3d.gaussians.densify import Densifier, remove
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import RenderOutput
@@ -73,6 +74,7 @@ class TrainState:
         for group in self.optimizers["means"].param_groups:
             group["lr"] = lr
 
+    @step_part("optimizer")
     def optimizer_step(self) -> None:
         """One Adam step of every parameter, Gaussians first; gradients cleared. An optimiser
         none of whose parameters has a gradient is not called (Adam would skip them anyway;
@@ -83,6 +85,7 @@ class TrainState:
             opt.step()
             opt.zero_grad(set_to_none=True)
 
+    @step_part("densify")
     def densify(self, out: RenderOutput, view_index: int) -> None:
         """The densification policy's hook after the step's ``backward`` (``self.step`` done)."""
         self.densifier.step_post_backward(self.model.params, self.optimizers, self.densify_stats, self.step, out,

@@ -31,7 +31,7 @@ from eve3d.core.fileio import atomic_path
 from eve3d.core.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
 from eve3d.core.scene import Scene
 from eve3d.core.settings import TrainSettings
-from eve3d.core.timing import phase
+from eve3d.core.timing import phase, step_part
 from eve3d.gaussians.losses import psnr, rgb_loss
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import RenderOutput, render_model
@@ -58,6 +58,12 @@ def initial_points(scene: Scene, count: int, rng: np.random.Generator,
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pts = scene.center + d * scene.radius * rng.random((count, 1)) ** (1 / 3)
     return pts, rng.random((count, 3))
+
+
+@step_part("backward")
+def backward(loss: torch.Tensor) -> None:
+    """The step's backward pass (a part of its own for ``eve3d bench training``)."""
+    loss.backward()
 
 
 class NonFiniteLoss(Eve3dError):
@@ -97,6 +103,7 @@ class Trainer:
         """SH degree in use at ``step``: one more every ``sh_degree_interval`` steps."""
         return min(self.settings.sh_degree, step // max(self.settings.sh_degree_interval, 1))
 
+    @step_part("projection")
     def render(self, view: View, step: int | None = None, **kw) -> RenderOutput:
         """The current model from a training view, with the SH degree of ``step`` (default: all)."""
         return render_model(self.model, view.cam, self.settings, None if step is None else self.sh_degree(step), **kw)
@@ -146,7 +153,7 @@ class Trainer:
                 raise NonFiniteLoss(
                     f"{stage}: loss term {', '.join(bad) or 'total'} is not finite at iteration {step}; "
                     f"the last good checkpoint is kept in {self.checkpoint.path} (step {self.checkpoint.saved_step()})")
-            loss.backward()
+            backward(loss)
             st.optimizer_step()
             st.step = step + 1
             with torch.no_grad(), phase("densify"):

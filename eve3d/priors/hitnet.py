@@ -61,8 +61,13 @@ class HitnetStereo:
 
         h, w = left.shape[:2]
         th, tw = self.size
-        grey = lambda im: (im.mean(-1) if im.ndim == 3 else im).astype(np.float32) / 255  # noqa: E731
-        resize = lambda im: cv2.resize(im, (tw, th), interpolation=cv2.INTER_AREA if tw < w else cv2.INTER_LINEAR)  # noqa: E731
+
+        def grey(im):
+            return (im.mean(-1) if im.ndim == 3 else im).astype(np.float32) / 255
+
+        def resize(im):
+            return cv2.resize(im, (tw, th), interpolation=cv2.INTER_AREA if tw < w else cv2.INTER_LINEAR)
+
         pair = np.stack([resize(grey(left)), resize(grey(right))])[None]
         out = np.asarray(self.session.run([OUTPUT], {INPUT: np.ascontiguousarray(pair)})[0], np.float32)
         return cv2.resize(out.reshape(th, tw), (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(w / tw)

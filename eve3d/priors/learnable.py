@@ -44,7 +44,10 @@ def resample_prior(depth: np.ndarray, confidence: np.ndarray, width: int, height
     if depth.shape == (height, width):
         return depth.astype(np.float32), confidence.astype(np.float32)
     valid = (depth > 0).astype(np.float32)
-    area = lambda a: cv2.resize(a.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA)  # noqa: E731
+
+    def area(a):
+        return cv2.resize(a.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA)
+
     cover = area(valid)
     mean = area(depth * valid) / np.maximum(cover, 1e-6)
     keep = cover >= 0.5
@@ -98,7 +101,10 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
              f"stereo could match: a blank wall, no overlap); they train without prior terms, but where the "
              f"multi-view check confirms a depth they have: "
              f"{', '.join(blank[:10])}{', …' if len(blank) > 10 else ''}")
-    on = lambda maps: [m.to(device) for m in maps]  # noqa: E731
+
+    def on(maps):
+        return [m.to(device) for m in maps]
+
     return Priors(on(depths), on(confs), on(normals), digest.hexdigest()[:16])
 
 

@@ -13,7 +13,10 @@ def mirrored(matcher: Callable[[np.ndarray, np.ndarray], np.ndarray], left: np.n
              right: np.ndarray) -> np.ndarray:
     """The right image's own disparity from a left-image matcher (a stereo network has no
     right matcher): mirroring both images turns the right view into a left view."""
-    flip = lambda im: np.ascontiguousarray(im[:, ::-1])  # noqa: E731
+
+    def flip(im):
+        return np.ascontiguousarray(im[:, ::-1])
+
     return np.ascontiguousarray(matcher(flip(right), flip(left))[:, ::-1])
 
 

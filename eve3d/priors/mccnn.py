@@ -124,7 +124,10 @@ def winner(total) -> np.ndarray:
     import torch
 
     best = total.argmin(0)
-    at = lambda k: total.gather(0, (best + k).clamp(0, len(total) - 1)[None])[0]  # noqa: E731
+
+    def at(k):
+        return total.gather(0, (best + k).clamp(0, len(total) - 1)[None])[0]
+
     c0, cm, cp = at(0), at(-1), at(1)
     curve = cm - 2 * c0 + cp
     inner = (best > 0) & (best < len(total) - 1) & (curve > 0)

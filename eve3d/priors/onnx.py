@@ -73,11 +73,17 @@ class OnnxStereo:
         h, w = left.shape[:2]
         if s.size is not None:
             th, tw = s.size
-            resize = lambda im: cv2.resize(im, (tw, th), interpolation=cv2.INTER_AREA if tw < w else cv2.INTER_LINEAR)  # noqa: E731
+
+            def resize(im):
+                return cv2.resize(im, (tw, th), interpolation=cv2.INTER_AREA if tw < w else cv2.INTER_LINEAR)
+
             out = self._run(resize(left), resize(right))
             return cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(w / tw)
         ph, pw = (max(n, s.min_size) + -max(n, s.min_size) % s.divisor - n for n in (h, w))
-        pad = lambda im: np.pad(im, ((0, ph), (0, pw), (0, 0)), mode="edge")  # noqa: E731
+
+        def pad(im):
+            return np.pad(im, ((0, ph), (0, pw), (0, 0)), mode="edge")
+
         return self._run(pad(left), pad(right))[:h, :w]
 
     def _run(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:

@@ -57,7 +57,9 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
         confidence = wls.getConfidenceMap().astype(np.float32) / 255.0
     else:
         # Invalid pixels hold minDisparity − 1 (in 1/16 px), which is positive once the range starts above 1.
-        in_range = lambda raw: np.where((raw >= 16 * low) & (raw < 16 * (low + num)), raw / 16.0, 0)  # noqa: E731
+        def in_range(raw):
+            return np.where((raw >= 16 * low) & (raw < 16 * (low + num)), raw / 16.0, 0)
+
         disp = in_range(raw_l.astype(np.float32))
         confidence = left_right_consistent(disp, in_range(-raw_r.astype(np.float32)), s.lr_threshold)
     return np.maximum(disp, 0).astype(np.float32), np.where(textured & (disp > 0), confidence, 0).astype(np.float32)

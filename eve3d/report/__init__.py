@@ -505,8 +505,8 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
             writer.writerows(rows)
 
 
-def run(settings: StereoSettings, benchmark: str | None = None, *, results: Path, out: Path,
-        datasets: Mapping[str, Path], ground_truth: Mapping[str, Path] | None = None) -> None:
+def run_report(settings: StereoSettings, benchmark: str | None = None, *, results: Path, out: Path,
+               datasets: Mapping[str, Path], ground_truth: Mapping[str, Path] | None = None) -> None:
     """The ``report_pages`` rule: the pages of ``results`` into ``out`` (``settings.backend``:
     the priors shown; ``benchmark``: its published figures join the means; ``ground_truth``:
     each scene's GT surface for its 3D view)."""

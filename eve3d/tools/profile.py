@@ -233,7 +233,7 @@ def _table(header: list[str], rows: list[list[str]], markdown: bool) -> str:
     return "\n".join([lines[0], "  ".join("-" * w for w in widths)] + lines[1:])
 
 
-def run(*, log: Path | None = None, workdir: Path = Path("."), markdown: bool = False) -> None:
+def run_profile(*, log: Path | None = None, workdir: Path = Path("."), markdown: bool = False) -> None:
     """``eve3d profile``: print the profile of the run that wrote ``log`` (default: the
     newest run in ``workdir``)."""
     print(format_profile(read_run(Path(log) if log else latest_log(Path(workdir))), markdown))

@@ -220,7 +220,7 @@ def write_standin(benchmark: str, scene: Scene, root: Path) -> Path:
     return writer(scene, root, name)
 
 
-def run(benchmark: str, root: Path, views: int = 49, width: int = 1600, height: int = 1200) -> None:
+def run_bench_standin(benchmark: str, root: Path, views: int = 49, width: int = 1600, height: int = 1200) -> None:
     """``eve3d bench standin``: a generated object in ``benchmark``'s layout under ``root``."""
     import tempfile
 

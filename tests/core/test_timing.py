@@ -44,3 +44,22 @@ def test_no_phase_no_line(clock):
 
 def test_process_age_is_this_process():
     assert 0 <= timing.process_age() < 3600
+
+
+def test_a_step_part_is_a_plain_call_unless_a_timer_is_installed():
+    from eve3d.core.timing import step_part, timing_step_parts
+
+    @step_part("densify")
+    def twice(x, by=2):
+        return x * by
+
+    seen = []
+
+    def timer(part, fn, args, kwargs):
+        seen.append((part, fn.__name__, args, kwargs))
+        return fn(*args, **kwargs) + 1
+
+    assert twice(3) == 6 and twice.__name__ == "twice"
+    with timing_step_parts(timer):
+        assert twice(3, by=3) == 10
+    assert twice(3) == 6 and seen == [("densify", "twice", (3,), {"by": 3})]

@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 
 from eve3d.core.errors import Eve3dError
+from eve3d.core.timing import step_part
 from eve3d.gaussians.render.projection import CameraTensors, Projected
 
 SOURCES = [Path(__file__).parent / "csrc" / name
@@ -112,6 +113,7 @@ class _FusedProjection(torch.autograd.Function):
         return (*grads, None, None, None, None)
 
 
+@step_part("rasterize")
 def rasterize(proj: Projected, opacities: torch.Tensor, features: torch.Tensor, width: int, height: int,
               absgrad: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, int]:
     """Alpha-composite ``features`` (N, C) front to back.

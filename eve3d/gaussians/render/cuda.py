@@ -4,9 +4,11 @@ from __future__ import annotations
 import torch
 
 from eve3d.core.errors import Eve3dError
+from eve3d.core.timing import step_part
 from eve3d.gaussians.render.projection import EPS2D, CameraTensors
 
 
+@step_part("rasterize")
 def rasterize_gsplat(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
                      features: torch.Tensor, cam: CameraTensors, near: float, far: float, absgrad: bool,
                      antialiased: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:

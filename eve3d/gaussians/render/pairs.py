@@ -24,9 +24,11 @@ import math
 
 import torch
 
+from eve3d.core.timing import step_part
 from eve3d.gaussians.render.projection import ALPHA_MAX, ALPHA_MIN, T_MIN, Projected, front_to_back
 
 
+@step_part("rasterize")
 def rasterize(proj: Projected, opacities: torch.Tensor, features: torch.Tensor, width: int, height: int,
               absgrad: torch.Tensor | None = None, max_pairs: int = 4_000_000
               ) -> tuple[torch.Tensor, torch.Tensor, int]:
@@ -56,7 +58,9 @@ class _Columns:
 
     def alpha(self, gid, px, py):
         """α per pair, the unclamped α and the offsets dx, dy from the Gaussian centre."""
-        take = lambda col: col.index_select(0, gid)  # noqa: E731
+        def take(col):
+            return col.index_select(0, gid)
+
         dx = px.to(self.mx.dtype) + 0.5 - take(self.mx)
         dy = py.to(self.mx.dtype) + 0.5 - take(self.my)
         sigma = 0.5 * (take(self.a) * dx * dx + take(self.c) * dy * dy) + take(self.b) * dx * dy
@@ -151,10 +155,15 @@ class _Composite(torch.autograd.Function):
         dl_dalpha = torch.where(raw > ALPHA_MAX, torch.zeros_like(dl_dalpha), dl_dalpha)  # clamped: flat
         dl_dsigma = -dl_dalpha * raw
         n = means2d.shape[0]
-        scatter = lambda values: values.new_zeros(n).index_add_(0, gid, values)  # noqa: E731
+
+        def scatter(values):
+            return values.new_zeros(n).index_add_(0, gid, values)
+
         grads: list[torch.Tensor | None] = [None] * 12
         if ctx.needs_input_grad[0] or ctx.absgrad is not None:
-            take = lambda col: col.index_select(0, gid)  # noqa: E731
+            def take(col):
+                return col.index_select(0, gid)
+
             a, b, c = take(columns.a), take(columns.b), take(columns.c)
             dmx, dmy = -dl_dsigma * (a * dx + b * dy), -dl_dsigma * (b * dx + c * dy)
             grads[0] = torch.stack([scatter(dmx), scatter(dmy)], dim=1)

@@ -84,7 +84,8 @@ def format_evaluate_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def run(meshes: list[str] = (), scene: str | None = None, gt: str | None = None, as_json: bool = False) -> None:
+def run_bench_evaluate(meshes: list[str] = (), scene: str | None = None, gt: str | None = None,
+                       as_json: bool = False) -> None:
     """``eve3d bench evaluate``: the table (or JSON) of :func:`bench_evaluate`."""
     import json
     from pathlib import Path

@@ -9,6 +9,15 @@ import numpy as np
 from eve3d.tools.bench.stereo import agreement_lines, prior_accuracy, prior_lines
 
 
+def _mean(values: list) -> float | None:
+    """The mean, or None when any value is missing."""
+    return None if None in values else float(np.mean(values))
+
+
+def _cell(value, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
 def methods_report(config: dict) -> dict:
     """The table of ``eve3d bench methods`` from a finished workflow run of ``config``
     (resolved): per scene and method the synthetic protocol's scores and the wall time of
@@ -48,23 +57,21 @@ def methods_report(config: dict) -> dict:
     means = []
     for name in dict.fromkeys(r["method"] for r in rows):
         mine = [r for r in rows if r["method"] == name]
-        mean = lambda k: (float(np.mean([r[k] for r in mine])) if all(r[k] is not None for r in mine)  # noqa: E731
-                          else None)
-        means.append({"scene": f"mean of {len(mine)}", "method": name,
-                      **{k: mean(k) for k in ("chamfer", "precision", "recall", "fscore", "seconds")}})
+        means.append({"scene": f"mean of {len(mine)}", "method": name, **{
+            k: _mean([r[k] for r in mine]) for k in ("chamfer", "precision", "recall", "fscore", "seconds")}})
     return {"rows": rows, "means": means, "shared_seconds": shared, "priors": priors}
 
 
 def format_methods_report(report: dict) -> str:
-    cell = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
     head = f"{'scene':<22} {'method':<18} {'chamfer':>9} {'precision':>9} {'recall':>7} {'F':>7} {'seconds':>8}"
     lines = [head, "-" * len(head)]
     for r in report["rows"] + report["means"]:
-        lines.append(f"{r['scene']:<22} {r['method']:<18} {cell(r['chamfer'], '9.5f')} {cell(r['precision'], '9.4f')} "
-                     f"{cell(r['recall'], '7.4f')} {cell(r['fscore'], '7.4f')} {cell(r['seconds'], '8.0f')}")
+        cells = (_cell(r[k], spec) for k, spec in (("chamfer", "9.5f"), ("precision", "9.4f"), ("recall", "7.4f"),
+                                                     ("fscore", "7.4f"), ("seconds", "8.0f")))
+        lines.append(f"{r['scene']:<22} {r['method']:<18} " + " ".join(cells))
     lines += ["", "seconds = the method's own stages (joint + mesh); shared by every method that uses the priors:"]
     for scene, stages in report["shared_seconds"].items():
-        lines.append(f"  {scene}: " + ", ".join(f"{k} {cell(v, '.0f')} s" for k, v in stages.items()))
+        lines.append(f"  {scene}: " + ", ".join(f"{k} {_cell(v, '.0f')} s" for k, v in stages.items()))
     if report["priors"]:
         lines += ["", "depth against the exact depth, on confident pixels (priors: M^c; rendered D: alpha ≥ 0.5);",
                   "on empty: the share of the pixels without a surface that have a confident depth (floaters);",
@@ -117,16 +124,15 @@ def real_report(config: dict) -> dict:
 
 
 def format_real_report(report: dict) -> str:
-    cell = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
     lines = []
     for r in report["scenes"]:
         total = sum(v for v in r["seconds"].values() if v is not None)
         lines += [f"{r['scene']}: {r['registered']} of {r['photos']} photos registered, {r['points']:,} sparse points",
                   "", f"{'job':<28} {'seconds':>8}"]
-        lines += [f"{job:<28} {cell(sec, '8.0f')}" for job, sec in r["seconds"].items()]
+        lines += [f"{job:<28} {_cell(sec, '8.0f')}" for job, sec in r["seconds"].items()]
         lines += [f"{'total':<28} {total:8.0f}  ({total / 60:.1f} min)", "",
                   f"{'held-out views':<16} {'PSNR dB':>8} {'SSIM':>7} {'views':>6}"]
-        lines += [f"{m:<16} {cell(h.get('psnr'), '8.2f')} {cell(h.get('ssim'), '7.4f')} {cell(h.get('views'), '6d')}"
+        lines += [f"{m:<16} {_cell(h.get('psnr'), '8.2f')} {_cell(h.get('ssim'), '7.4f')} {_cell(h.get('views'), '6d')}"
                   for m, h in r["held_out"].items()]
         if r["priors"]:
             lines += ["", "priors, neighbouring views against each other (confident pixels)"]
@@ -134,7 +140,7 @@ def format_real_report(report: dict) -> str:
         if r["meshes"]:
             lines += ["", f"{'mesh':<16} {'triangles':>10} {'extent':>26} {'× sparse 5–95 % box':>20}"]
             lines += [f"{m:<16} {x['triangles']:>10,} {' × '.join(f'{e:.2f}' for e in x['extent']):>26} "
-                      f"{cell(x['extent_ratio'], '20.2f')}" for m, x in r["meshes"].items()]
+                      f"{_cell(x['extent_ratio'], '20.2f')}" for m, x in r["meshes"].items()]
             box = next(iter(r["meshes"].values()))["sparse_extent"]
             if box:
                 lines.append(f"sparse points' 5–95 % box: {' × '.join(f'{e:.2f}' for e in box)}")
@@ -142,11 +148,11 @@ def format_real_report(report: dict) -> str:
     return "\n".join(lines)
 
 
-# --- training step -------------------------------------------------------------------------
-
-
-def run_workflow(config_file: str, cores: int = 2, report_only: bool = False) -> dict:
-    """Run the workflow of a benchmark's config (unless ``report_only``); its resolved config."""
+def run_bench_workflow(kind: str, config_file: str, cores: int = 2, report_only: bool = False,
+                       as_json: bool = False) -> None:
+    """``eve3d bench methods`` and ``eve3d bench real`` (``kind``): run the workflow of a
+    benchmark's config (unless ``report_only``), then print the table (or JSON) of
+    :func:`methods_report` or :func:`real_report`."""
     import subprocess
     import sys
 
@@ -154,22 +160,16 @@ def run_workflow(config_file: str, cores: int = 2, report_only: bool = False) ->
     from eve3d.core.errors import Eve3dError
     from eve3d.core.layout import Layout
 
+    report, table = WORKFLOW_BENCHES[kind]
     config = load_config(config_file)
     if not report_only:
         cmd = [sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), "--configfile", config_file,
                "--replace-workflow-config", f"-c{cores}", "--quiet", "rules", "progress"]
         if subprocess.run(cmd).returncode != 0:
             raise Eve3dError(f"the workflow of {config_file} failed (its logs: {Layout(config['results']).logs()}/)")
-    return config
+    measured = report(config)
+    print(json.dumps(measured, indent=2) if as_json else table(measured))
 
 
-def run(config_file: str, cores: int = 2, report_only: bool = False, as_json: bool = False) -> None:
-    """``eve3d bench methods``: the table (or JSON) of :func:`methods_report`."""
-    report = methods_report(run_workflow(config_file, cores, report_only))
-    print(json.dumps(report, indent=2) if as_json else format_methods_report(report))
-
-
-def run_real(config_file: str, cores: int = 2, report_only: bool = False, as_json: bool = False) -> None:
-    """``eve3d bench real``: the table (or JSON) of :func:`real_report`."""
-    report = real_report(run_workflow(config_file, cores, report_only))
-    print(json.dumps(report, indent=2) if as_json else format_real_report(report))
+WORKFLOW_BENCHES = {"methods": (methods_report, format_methods_report), "real": (real_report, format_real_report)}
+"""``eve3d bench`` tool → (the report of a finished workflow run, its table)."""

@@ -140,7 +140,8 @@ def rasterizer_json(rows: list[RasterizerTiming]) -> str:
 # --- stereo --------------------------------------------------------------------------------
 
 
-def run(sizes=RASTERIZER_SIZES, backend: str = "auto", repeats: int = 5, as_json: bool = False) -> None:
+def run_bench_rasterizer(sizes=RASTERIZER_SIZES, backend: str = "auto", repeats: int = 5,
+                         as_json: bool = False) -> None:
     """``eve3d bench rasterizer``: the table (or JSON) of :func:`bench_rasterizer`."""
     rows = bench_rasterizer(sizes, backend=backend, repeats=repeats)
     print(rasterizer_json(rows) if as_json else format_rasterizer_table(rows))

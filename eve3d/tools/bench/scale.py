@@ -297,7 +297,10 @@ def format_scale_report(report: dict) -> str:
                                f"({total / 60:.1f} min; largest peak: {top['stage']} {top['detail']}".rstrip() + ")"]
     if report["scores"]:
         lines += ["", f"{'scores':<40} {'precision':>9} {'recall':>7} {'F':>7} {'chamfer':>9}"]
-        cell = lambda v, w, f: f"{'-' if v is None else format(v, f):>{w}}"  # noqa: E731
+
+        def cell(v, w, f):
+            return f"{'-' if v is None else format(v, f):>{w}}"
+
         lines += [f"{k:<40} {cell(s['precision'], 9, '.4f')} {cell(s['recall'], 7, '.4f')} "
                   f"{cell(s['fscore'], 7, '.4f')} {cell(s['chamfer'], 9, '.5g')}" for k, s in report["scores"].items()]
     iterations = ", ".join(f"{k} {v}" for k, v in report["iterations"].items() if v is not None)
@@ -310,10 +313,11 @@ def format_scale_report(report: dict) -> str:
     return "\n".join(lines)
 
 
-def run(config_file: str | None, sets: list[str], *, memory: bool = False, kind: str = SCALE_KIND,
-        size: tuple[int | None, int | None, int | None] = (None, None, None), iterations: int | None = None,
-        methods: Sequence[str] | None = None, gt_points: int | None = None, protocols: Sequence[str] | None = None,
-        work: str | None = None, as_json: bool = False) -> None:
+def run_bench_scale(config_file: str | None, sets: list[str], *, memory: bool = False, kind: str = SCALE_KIND,
+                    size: tuple[int | None, int | None, int | None] = (None, None, None),
+                    iterations: int | None = None, methods: Sequence[str] | None = None,
+                    gt_points: int | None = None, protocols: Sequence[str] | None = None, work: str | None = None,
+                    as_json: bool = False) -> None:
     """``eve3d bench scale``: the table (or JSON) of :func:`bench_scale`; ``size`` (views,
     width, height) and ``iterations`` override :data:`SCALE_SIZE` and the config's."""
     import contextlib

@@ -79,7 +79,10 @@ def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
     lines = [f"{title:<{width}} {'median signed':>13} {'median rel. error':>17} {'density':>8} {'off >5 %':>9} "
              f"{'off >10 %':>9} {'on empty':>9}" + (f" {'weak texture: share':>19} {'density':>8} {'error':>8}"
                                                    if weak else "")]
-    percent = lambda v, f=".2f": "-" if v is None else f"{v * 100:{f}} %"  # noqa: E731
+
+    def percent(v, f=".2f"):
+        return "-" if v is None else f"{v * 100:{f}} %"
+
     for label, r in zip(labels, rows):
         line = f"{label:<{width}} "
         if r["median_signed_error"] is None:  # no confident pixel with an exact depth
@@ -101,7 +104,7 @@ def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
 # --- evaluation ----------------------------------------------------------------------------
 
 
-def run(priors: list[Path], scene: Path | None = None, as_json: bool = False) -> None:
+def run_bench_stereo(priors: list[Path], scene: Path | None = None, as_json: bool = False) -> None:
     """``eve3d bench stereo``: the Motorcycle pair, then each prior folder scored against the
     oracle beside it, or (a real capture, no oracle) its views' agreement over ``scene``."""
     import json

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import bisect
-import contextlib
 import functools
 import multiprocessing
 import time
@@ -14,6 +13,7 @@ from unittest import mock
 import numpy as np
 
 from eve3d.core.errors import Eve3dError
+from eve3d.core.timing import timing_step_parts
 from eve3d.tools.bench.common import in_child, peak_rss_mb
 
 if TYPE_CHECKING:
@@ -42,7 +42,7 @@ _ACCUMULATE_GRAD = 2**64 - 1
 
 
 class StepProfiler:
-    """Self times of the parts of training steps, by wrapping the functions a step calls;
+    """Self times of the parts of training steps, timed around the calls of a step's parts;
     the method is :func:`profile_steps`'. ``sync`` waits for the device (CUDA) at every
     boundary, so that its work is charged to the part that queued it."""
 
@@ -85,35 +85,30 @@ class StepProfiler:
         self.open.pop()
         self._mark()
 
-    def timed(self, part: str, fn: Callable) -> Callable:
-        """``fn``, its self time charged to ``part``."""
-        @functools.wraps(fn)
-        def wrapper(*args, **kwargs):
-            self._enter(part)
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                self._leave()
-        return wrapper
+    def call(self, part: str, fn: Callable, *args, **kwargs):
+        """``fn(*args, **kwargs)``, its self time charged to ``part``."""
+        self._enter(part)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            self._leave()
 
-    def timed_backward(self, backward: Callable) -> Callable:
-        """``Tensor.backward``, its time split among the backward parts by pre-hooks on the
-        first node of each forward part's stretch of the graph."""
-        def wrapper(tensor, *args, **kwargs):
-            start = time.perf_counter()
-            self._charge()
-            for node, part in self._stretch_starts(tensor.grad_fn):
-                node.register_prehook(functools.partial(self._backward_reaches, part))
-            self.sync()
-            self.open.append("losses_backward")
-            self.overhead += time.perf_counter() - start
-            self.since = time.perf_counter()
-            try:
-                return backward(tensor, *args, **kwargs)
-            finally:
-                self._leave()
-                self.marks = self.marks[-1:]
-        return wrapper
+    def backward(self, backward: Callable, loss: torch.Tensor):
+        """``backward(loss)``, its time split among the backward parts by pre-hooks on the
+        first node of each forward part's stretch of ``loss``'s graph."""
+        start = time.perf_counter()
+        self._charge()
+        for node, part in self._stretch_starts(loss.grad_fn):
+            node.register_prehook(functools.partial(self._backward_reaches, part))
+        self.sync()
+        self.open.append("losses_backward")
+        self.overhead += time.perf_counter() - start
+        self.since = time.perf_counter()
+        try:
+            return backward(loss)
+        finally:
+            self._leave()
+            self.marks = self.marks[-1:]
 
     def _backward_reaches(self, part: str, grad_outputs) -> None:
         self.sync()
@@ -165,40 +160,22 @@ class StageTiming:
     """Per step, the bench's walk of the graph before each backward: left out of ``step_ms``."""
 
 
-@contextlib.contextmanager
-def _instrumented(trainer: Trainer, profiler: StepProfiler, counts: dict, ticks: list[float]):
-    """``trainer``'s render, the backends' entries, the optimiser step, densification and
-    ``Tensor.backward`` wrapped with ``profiler``'s timers for the duration (see
-    :func:`profile_steps`); ``counts`` and ``ticks`` receive the renders, pairs and steps."""
-    import torch
-
-    from eve3d.gaussians.render import cpu, cuda, pairs
-
-    st = trainer.state
-    optimizer_step = profiler.timed("optimizer", st.optimizer_step)
-
-    def counted(render: Callable) -> Callable:
-        def wrapper(*args, **kwargs):
-            out = render(*args, **kwargs)
+def _part_timer(trainer: Trainer, profiler: StepProfiler, counts: dict, ticks: list[float]):
+    """The timer of the step's parts (:func:`eve3d.core.timing.step_part`), each charged by
+    ``profiler`` (see :func:`profile_steps`); ``counts`` and ``ticks`` receive the renders,
+    pairs and steps."""
+    def timed(part: str, fn: Callable, args: tuple, kwargs: dict):
+        if part == "backward":
+            return profiler.backward(fn, *args, **kwargs)
+        if part == "optimizer":
+            counts["gaussians"] += len(trainer.model)
+            ticks.append(time.perf_counter() - profiler.overhead)
+        out = profiler.call(part, fn, *args, **kwargs)
+        if part == "projection":
             counts["renders"] += 1
             counts["pairs"] += out.n_pairs or 0
-            return out
-        return wrapper
-
-    def counted_step() -> None:
-        counts["gaussians"] += len(trainer.model)
-        ticks.append(time.perf_counter() - profiler.overhead)
-        optimizer_step()
-
-    with contextlib.ExitStack() as stack:
-        patch = lambda target, name, new: stack.enter_context(mock.patch.object(target, name, new))  # noqa: E731
-        patch(trainer, "render", counted(profiler.timed("projection", trainer.render)))
-        for module, name in ((cpu, "rasterize"), (pairs, "rasterize"), (cuda, "rasterize_gsplat")):
-            patch(module, name, profiler.timed("rasterize", getattr(module, name)))
-        patch(st, "optimizer_step", counted_step)
-        patch(st, "densify", profiler.timed("densify", st.densify))
-        patch(torch.Tensor, "backward", profiler.timed_backward(torch.Tensor.backward))
-        yield
+        return out
+    return timed
 
 
 def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], None] | None, start: int, warmup: int,
@@ -206,7 +183,9 @@ def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], Non
     """Run ``warmup`` then ``steps`` steps of ``trainer`` from step ``start`` of its schedule
     and return the mean time of each part of the timed steps.
 
-    Method (the training code is not changed; every wrapper is removed afterwards):
+    Method (the training code marks its parts with :func:`eve3d.core.timing.step_part`,
+    plain calls but while this installs its timer, so it changes nothing and names none of
+    them):
 
     - forward: ``Trainer.render`` is charged to projection forward, the backend's entry
       (``cpu.rasterize``: the depth sort and pixel boxes, then the C++ tile compositing;
@@ -216,9 +195,9 @@ def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], Non
       neighbour) is not the loss's, the compositing is not the render's. So projection
       forward is everything ``render_model`` does around the compositing: SH colours,
       rotations, planar features, the EWA projection, the outputs' depth division.
-    - backward: ``loss.backward()`` is wrapped. On the CPU autograd runs the graph's nodes in
+    - backward: the step's ``backward(loss)`` is timed. On the CPU autograd runs the graph's nodes in
       decreasing sequence number, the reverse of their creation, so each forward part's
-      stretch of creation runs as one stretch of backward. The wrapper walks the graph first
+      stretch of creation runs as one stretch of backward. The timer walks the graph first
       (not counted) and puts a pre-hook on the node that starts each stretch; when it fires,
       the time from there on is that part's backward: the compositing's (rasterise
       backward), the render's (projection backward), anything else's (losses backward).
@@ -239,8 +218,8 @@ def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], Non
     ticks: list[float] = []  # when each timed step reached the optimiser (the bench's own time left out)
     st.step = start
     st.densify_stats["birth"].fill_(start)  # the first model is born here: no pruning by views seen before
-    with _instrumented(trainer, profiler, counts, ticks):
-        timed_loss = profiler.timed("losses", loss)
+    with timing_step_parts(_part_timer(trainer, profiler, counts, ticks)):
+        timed_loss = functools.partial(profiler.call, "losses", loss)
         trainer.run(timed_loss, events, until=start + warmup)
         profiler.reset()
         counts.update(dict.fromkeys(counts, 0))
@@ -361,7 +340,10 @@ def format_training_table(report: dict) -> str:
     stages = report["stages"]
     w = max(9, *(len(r["stage"]) for r in stages))
     label_w = max(len(label) for label in STEP_PARTS.values())
-    row = lambda label, cells: f"{label:<{label_w}} " + " ".join(f"{c:>{w}}" for c in cells)  # noqa: E731
+
+    def row(label, cells):
+        return f"{label:<{label_w}} " + " ".join(f"{c:>{w}}" for c in cells)
+
     head = row("ms per step", [r["stage"] for r in stages])
     lines = [head, "-" * len(head)]
     lines += [row(label, [f"{r['parts_ms'][k]:.1f}" for r in stages]) for k, label in STEP_PARTS.items()]
@@ -385,8 +367,8 @@ def format_training_table(report: dict) -> str:
 # --- scale ---------------------------------------------------------------------------------
 
 
-def run(config: dict, stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, warmup: int = 3,
-        gaussians: int = 35_000, start: int | None = None, as_json: bool = False) -> None:
+def run_bench_training(config: dict, stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, warmup: int = 3,
+                       gaussians: int = 35_000, start: int | None = None, as_json: bool = False) -> None:
     """``eve3d bench training``: the table (or JSON) of :func:`bench_training`."""
     import json
 

@@ -19,6 +19,9 @@ def test_training_bench_parts_add_up_to_the_step():
     assert list(row["parts_ms"]) == list(STEP_PARTS)
     assert abs(sum(row["parts_ms"].values()) - row["step_ms"]) < 1e-6
     assert min(row["parts_ms"].values()) >= 0 and row["peak_mb"] > 0
+    ran = {k for k, v in row["parts_ms"].items() if v > 0}  # each part the code marks is reached and timed
+    assert ran >= {"projection", "rasterize", "losses", "losses_backward", "rasterize_backward", "projection_backward",
+                   "optimizer", "densify"}, row["parts_ms"]
 
     lines = format_training_table(report).splitlines()
     assert lines[0].split()[-1] == "pgsr"
