@@ -1,6 +1,6 @@
 """The ``sgbm`` stereo backend: OpenCV's StereoSGBM, its left–right check against
 opencv-contrib's right matcher and optional WLS filtering (``ximgproc``), gated by texture.
-The default: no weights, about 0.15 s a 240×320 pair."""
+The default: no weights (its speed: docs/results.md, "Figures behind the code's choices")."""
 from __future__ import annotations
 
 import numpy as np

@@ -313,7 +313,8 @@ def _error_map(path: Path) -> np.ndarray | None:
     """An error map (``precision.ply`` / ``recall.ply``: points coloured by distance, already
     thinned by ``evaluate.common.write_error_maps``) seen from above, along −z: an RGB image
     in which each pixel takes the colour of its highest point; None when the map is empty.
-    Drawn as an image rather than as 200,000 matplotlib markers, which took 0.45 s a panel."""
+    Drawn as an image rather than as 200,000 matplotlib markers, which are slow to draw
+    (docs/results.md, "Figures behind the code's choices")."""
     import open3d as o3d
 
     cloud = o3d.io.read_point_cloud(str(path))

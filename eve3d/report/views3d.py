@@ -66,7 +66,7 @@ def reduced_surface(path: Path, triangles: int = MESH_TRIANGLES, points: int = G
     mesh = o3d.io.read_triangle_mesh(str(path))
     if len(mesh.triangles):
         original = len(mesh.triangles)
-        if original > triangles:  # vertex clustering: 0.5 s for 450k triangles, quadric decimation 10-20 s
+        if original > triangles:  # vertex clustering: far quicker than quadric decimation (docs/results.md)
             voxel = float(np.sqrt(2 * mesh.get_surface_area() / triangles))  # a cell holds about two triangles
             for _ in range(4):
                 reduced = mesh.simplify_vertex_clustering(voxel)

@@ -96,8 +96,8 @@ def read_run(log: Path) -> Run:
     for line in lines:
         if m := _WORKDIR.match(line):
             workdir = Path(m.group(1))
-        elif line.startswith("Provided cores: "):
-            cores = int(line.split()[-1])
+        elif line.startswith("Provided cores: "):  # "Provided cores: 2", at one "1 (use --cores to define parallelism)"
+            cores = int(line.split()[2])
         elif m := _ELAPSED.match(line):
             elapsed = int(m.group(1)) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
     for job in jobs:

@@ -50,9 +50,15 @@ def test_truncated_ply_is_refused_with_its_name(tmp_path):
 
 
 def test_sh_basis_is_orthonormal_on_the_sphere():
-    """Each coefficient alone gives one real SH basis function; Monte Carlo ∫ Y_i Y_j = δ_ij."""
-    dirs = torch.nn.functional.normalize(torch.randn(400_000, 3, generator=torch.Generator().manual_seed(0),
-                                                     dtype=torch.float64), dim=-1)
+    """Each coefficient alone gives one real SH basis function; ∫ Y_i Y_j = δ_ij, by a product
+    quadrature exact for these degree-≤6 products: Gauss–Legendre in cos θ (4 nodes, exact to
+    degree 7) times 8 equally spaced φ (exact to trigonometric degree 7)."""
+    z, w = np.polynomial.legendre.leggauss(4)
+    phi = np.arange(8) * 2 * math.pi / 8
+    zz, pp = np.meshgrid(z, phi, indexing="ij")
+    r = np.sqrt(1 - zz**2)
+    dirs = torch.from_numpy(np.stack([r * np.cos(pp), r * np.sin(pp), zz], axis=-1).reshape(-1, 3))
+    weights = torch.from_numpy(np.repeat(w, 8) * 2 * math.pi / 8)
     basis = []
     for i in range(16):
         sh = torch.zeros(len(dirs), 16, 3, dtype=torch.float64)
@@ -60,8 +66,8 @@ def test_sh_basis_is_orthonormal_on_the_sphere():
         sh[:, i] += 1.0
         basis.append(eval_sh(3, sh, dirs)[:, 0] - 0.5 - SH_C0 * 10.0)
     Y = torch.stack(basis, dim=1)
-    gram = 4 * math.pi * (Y.T @ Y) / len(dirs)
-    torch.testing.assert_close(gram, torch.eye(16, dtype=torch.float64), atol=0.02, rtol=0)
+    gram = Y.T @ (weights[:, None] * Y)
+    torch.testing.assert_close(gram, torch.eye(16, dtype=torch.float64), atol=1e-12, rtol=0)
 
 
 def test_from_points_scales_by_nearest_neighbours():

@@ -26,7 +26,7 @@ from eve3d.core.scene import Camera, Scene
 
 def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """3×4 projection (any scale) → K (K[2,2] = 1, positive focal lengths), R, t."""
-    import scipy.linalg  # here: every command imports the scene readers, only DTU's cameras need it (0.25 s)
+    import scipy.linalg  # here: every command imports the scene readers, only DTU's cameras need it
 
     P = np.asarray(P, dtype=np.float64)[:3, :4]
     if np.linalg.det(P[:, :3]) < 0:  # the overall scale of P may be negative
