@@ -90,3 +90,10 @@ def test_cli_and_clear_errors(run_dir, tmp_path):
     assert r.returncode == 2 and "no Snakemake log of a run that ran a stage" in r.stderr
     with pytest.raises(Eve3dError, match="cannot read"):
         read_run(Path(tmp_path / "missing.log"))
+
+
+def test_a_one_core_run_is_read(run_dir):
+    """At -c1 Snakemake says "Provided cores: 1 (use --cores to define parallelism)"."""
+    log = latest_log(run_dir)
+    log.write_text(log.read_text().replace("Provided cores: 2", "Provided cores: 1 (use --cores to define parallelism)"))
+    assert read_run(log).cores == 1
