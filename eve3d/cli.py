@@ -533,8 +533,20 @@ def _add_bench_run_parsers(what) -> None:
         me.set_defaults(func=func)
 
 
+_WITHOUT_OPEN3D = (_cmd_pretrain, _cmd_stereo_render, _cmd_joint)
+"""The commands whose process never uses open3d: the training stages, which a GPU machine without
+it runs."""
+
+
 def main(argv: list[str] | None = None) -> int:
+    """``eve3d ARGV``; None: this process's own command line (the ``eve3d`` script, ``python -m
+    eve3d``). A training command in a process of its own marks open3d absent, so that reading
+    a COLMAP model does not import it first to keep pycolmap's zlib in order (a second of the
+    job's start, ``core.io.colmap.import_pycolmap``), and a use of it fails here as it would
+    on that machine."""
     args = build_parser().parse_args(argv)
+    if argv is None and args.func in _WITHOUT_OPEN3D:
+        sys.modules.setdefault("open3d", None)
     try:
         args.func(args)
     except Eve3dError as e:
