@@ -256,7 +256,10 @@ def plane_pair(tilt_deg: float, disparity: float, margin: int = 48) -> tuple[np.
     caster = MeshRaycaster([mesh])
     baseline = disparity * 2.0 / f
     supersample = np.stack(np.meshgrid([0.25, 0.75], [0.25, 0.75]), -1).reshape(-1, 2)
-    image = lambda c: np.clip(shade(parts, caster.cast(c, supersample), 0).mean(0) * 255 + 0.5, 0, 255).astype(np.uint8)  # noqa: E731
+
+    def image(c):
+        return np.clip(shade(parts, caster.cast(c, supersample), 0).mean(0) * 255 + 0.5, 0, 255).astype(np.uint8)
+
     right = image(margin_camera(right_camera(cam, baseline), margin))
     return image(cam), right, caster.cast(cam).depth, f, baseline
 

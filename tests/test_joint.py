@@ -123,8 +123,11 @@ def test_confidence_never_grows_and_the_check_refutes_what_is_wrong(tiny_scene, 
     priors, views = run.priors, run.trainer.views
     for i, near in enumerate(select_neighbours(tiny_scene, 4)):
         priors.update_confidence(i, [views[j] for j in near])
-    kept = lambda cols: float(sum(c[:, cols].sum() for c in priors.confidence)  # noqa: E731
-                              / sum(c[:, cols].sum() for c in priors.star.confidence))
+
+    def kept(cols):
+        mine, star = (sum(c[:, cols].sum() for c in maps.confidence) for maps in (priors, priors.star))
+        return float(mine / star)
+
     assert kept(slice(24, 34)) < 0.2 * kept(slice(36, 64)) and kept(slice(36, 64)) > 0.1
     run.trainer.run(run.loss)
     for now, measured in zip(priors.confidence, priors.star.confidence):

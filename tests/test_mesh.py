@@ -62,8 +62,11 @@ def test_canonical_order_ignores_the_order_a_mesh_comes_in():
         assert np.array_equal(np.asarray(getattr(a, key)), np.asarray(getattr(b, key))), key
     a.compute_triangle_normals()
     sphere.compute_triangle_normals()
-    outward = lambda m: np.einsum("ij,ij->i", np.asarray(m.triangle_normals),  # noqa: E731
-                                  np.asarray(m.vertices)[np.asarray(m.triangles)].mean(1))
+
+    def outward(m):
+        centres = np.asarray(m.vertices)[np.asarray(m.triangles)].mean(1)
+        return np.einsum("ij,ij->i", np.asarray(m.triangle_normals), centres)
+
     assert (outward(a) > 0).all() and (outward(sphere) > 0).all()
 
 

@@ -74,7 +74,10 @@ def test_a_shifted_disparity_loses_its_confidence():
     so does a disparity pinned at the end of the range searched."""
     left, right = shifted_pair(12, grain=2)
     sure = np.ones(left.shape[:2], np.float32)
-    kept = lambda disp: checked_confidence(left, right, disp, sure, (0, 40))[:, 20:].mean()  # noqa: E731
+
+    def kept(disp):
+        return checked_confidence(left, right, disp, sure, (0, 40))[:, 20:].mean()
+
     true = np.full(left.shape[:2], 12.0, np.float32)
     assert kept(true) > 0.95
     for shift in (3, -3, 5):
@@ -94,8 +97,10 @@ def test_a_silhouette_gives_the_empty_background_no_confident_depth():
     moved = np.roll(square, -12, axis=1)  # the square in the right view (x_right = x_left − 12)
     left, right = left * square[..., None], right * moved[..., None]
     disp, conf = sgbm_disparity(left, right, 40)
-    confident = lambda alpha=None, **check: checked_confidence(  # noqa: E731
-        left, right, disp, conf, (0, 40), check=MatchCheck(**check), alpha=alpha) > 0
+
+    def confident(alpha=None, **check):
+        return checked_confidence(left, right, disp, conf, (0, 40), check=MatchCheck(**check), alpha=alpha) > 0
+
     assert (confident(edge_window=0, min_alpha=0, min_light=0) & ~square).sum() > 100  # the halo
     for c in (confident(min_alpha=0, min_light=0), confident(square.astype(np.float32), edge_window=0, min_light=0),
               confident(edge_window=0, min_alpha=0), confident(square.astype(np.float32))):
@@ -179,6 +184,9 @@ def test_neighbour_photos_agree_with_the_exact_depth_and_not_with_a_wrong_one(ob
     photo = read_image(cams[i].image_path)
     others = [(cams[j], read_image(cams[j].image_path)) for j in near]
     textured = hits.valid & (local_std(photo, 7) > 4)
-    agree = lambda d: ((neighbour_ncc(cams[i], photo, d, others) >= 0.5).sum(0) >= 2)[textured].mean()  # noqa: E731
+
+    def agree(d):
+        return ((neighbour_ncc(cams[i], photo, d, others) >= 0.5).sum(0) >= 2)[textured].mean()
+
     assert agree(depth) > 0.85  # measured 0.92
     assert agree(1.08 * depth) < 0.45  # measured 0.35

@@ -34,7 +34,10 @@ def test_dark_room_is_the_inside_room_darker_and_flatter(tmp_path):
     walls = np.abs(bright - dark).max(-1) > 2  # the rest (floor, furniture) is unchanged
     assert 0.2 < walls.mean() < 0.9 and np.abs(bright - dark)[~walls].max() <= 2
     assert dark[walls].mean() < 0.4 * bright[walls].mean()
-    spread = lambda im: np.median(np.stack([local_std(v, 5) for v in im])[walls])  # noqa: E731
+
+    def spread(im):
+        return np.median(np.stack([local_std(v, 5) for v in im])[walls])
+
     assert spread(dark) < 0.4 * spread(bright)
 
 

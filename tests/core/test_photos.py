@@ -23,7 +23,10 @@ def test_one_orientation_rule(tmp_path):
     assert np.array_equal(read_upright(tmp_path / "a.png"), upright)
     save_sideways(upright, tmp_path / "b.jpg")  # as a phone writes it
     assert read_image(tmp_path / "b.jpg").shape == (64, 48, 3)
-    grey = lambda im: im.astype(float).mean(-1)  # noqa: E731  (JPEG keeps the luma, not the chroma)
+
+    def grey(im):  # JPEG keeps the luma, not the chroma
+        return im.astype(float).mean(-1)
+
     assert np.abs(grey(read_upright(tmp_path / "b.jpg")) - grey(upright)).mean() < 5  # measured 3.2
     assert np.abs(grey(read_upright(tmp_path / "b.jpg")) - grey(upright[::-1, ::-1])).mean() > 20
 

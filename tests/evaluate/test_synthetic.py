@@ -66,8 +66,12 @@ def test_synthetic_protocol_ignores_unseen_gt_and_crops_far_recon(tmp_path):
     o3d.io.write_triangle_mesh(str(tmp_path / "gt_hidden.ply"), gt + hidden)
     o3d.io.write_triangle_mesh(str(tmp_path / "recon_far.ply"), gt + far)
     scene = Scene(root=tmp_path, cameras=object_cameras(24, 160, 120, np.random.default_rng(0)))
-    run = lambda recon, gt_name: PROTOCOLS["synthetic"].run(EvalInputs(  # noqa: E731
-        scene, tmp_path / recon, tmp_path / "m.json", gt=tmp_path / gt_name, settings=EvalSettings(samples=100_000)))
+
+    def run(recon, gt_name):
+        inputs = EvalInputs(scene, tmp_path / recon, tmp_path / "m.json", gt=tmp_path / gt_name,
+                            settings=EvalSettings(samples=100_000))
+        return PROTOCOLS["synthetic"].run(inputs)
+
     with_hidden = run("gt.ply", "gt_hidden.ply")
     assert with_hidden["recall"] == 1.0 and with_hidden["precision"] == 1.0
     far_recon = run("recon_far.ply", "gt.ply")

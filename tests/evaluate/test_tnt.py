@@ -257,7 +257,10 @@ def test_official_mode_scores_the_vertices_of_a_coarse_mesh(tnt_layout, tmp_path
     ours, theirs = np.asarray(toolbox.points), np.asarray(gt.points)
     assert official["n_recon"] == len(ours)
     # exact nearest distances by scipy's k-d tree (the evaluation uses open3d's)
-    nearest = lambda query, reference: cKDTree(reference).query(query)[0]  # noqa: E731
+
+    def nearest(query, reference):
+        return cKDTree(reference).query(query)[0]
+
     assert official["precision"] == pytest.approx(np.mean(nearest(ours, theirs) < tau), abs=1e-9)
     assert official["recall"] == pytest.approx(np.mean(nearest(theirs, ours) < tau), abs=1e-9)
 

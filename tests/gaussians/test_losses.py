@@ -38,8 +38,10 @@ def test_a_neighbour_pixel_without_a_measured_depth_confirms_nothing():
     (ref, *nbrs), depth = plane_views(0.3, (0.0, *xs))
     theirs = [plane_views(0.3, (x,))[1] for x in xs]
     cams = CameraStack([n.cam for n in nbrs])
-    confirm = lambda d, conf, tol=0.01: depth_confirmation(d, ref.grey, ref.cam, cams, theirs, conf,  # noqa: E731
-                                                           [n.grey for n in nbrs], tol)
+
+    def confirm(d, conf, tol=0.01):
+        return depth_confirmation(d, ref.grey, ref.cam, cams, theirs, conf, [n.grey for n in nbrs], tol)
+
     everywhere = [torch.ones_like(d, dtype=torch.bool) for d in theirs]
     agrees, ncc, flat = confirm(depth, everywhere)
     assert agrees.shape == (2, *depth.shape) and agrees.float().mean() > 0.6 and not flat.any()
@@ -121,7 +123,10 @@ def test_fused_round_trip_gradients_pass_gradcheck():
     ref, nbrs, depth, nbr_depths = _round_trip_setup(torch.float64, 12, 9)
     defined = forward_backward_error(depth, nbr_depths, ref, nbrs, fused=True)[1]
     assert defined.float().mean() > 0.7
-    phi = lambda d, *n: forward_backward_error(d, list(n), ref, nbrs, fused=True)[0] * defined  # noqa: E731
+
+    def phi(d, *n):
+        return forward_backward_error(d, list(n), ref, nbrs, fused=True)[0] * defined
+
     inputs = (depth.requires_grad_(), *[x.requires_grad_() for x in nbr_depths])
     assert torch.autograd.gradcheck(phi, inputs, eps=1e-7, atol=1e-5)
 
@@ -164,7 +169,10 @@ def test_fused_ncc_gradients_pass_gradcheck():
     grey, greys, normal, distance, pixels = _ncc_inputs(torch.float64)
     ok = ncc_loss(grey, greys, ref, nbrs, normal, distance, pixels[:, :8], fused=True)[1]
     assert ok.float().mean() > 0.4
-    loss = lambda n, d: ncc_loss(grey, greys, ref, nbrs, n, d, pixels[:, :8], fused=True)[0] * ok  # noqa: E731
+
+    def loss(n, d):
+        return ncc_loss(grey, greys, ref, nbrs, n, d, pixels[:, :8], fused=True)[0] * ok
+
     assert torch.autograd.gradcheck(loss, (normal.requires_grad_(), distance.requires_grad_()), eps=1e-7, atol=1e-5)
 
 
@@ -178,7 +186,10 @@ def test_ssim_matches_a_reference_with_zero_padding():
     x = np.arange(11) - 5.0
     g = np.exp(-x**2 / (2 * 1.5**2))
     window = np.outer(g, g) / g.sum() ** 2
-    blur = lambda m: correlate(m, window, mode="constant", cval=0.0)  # noqa: E731
+
+    def blur(m):
+        return correlate(m, window, mode="constant", cval=0.0)
+
     maps = []
     for ch in range(3):
         u, v = a[..., ch], b[..., ch]

@@ -39,7 +39,10 @@ def plane_pair(h: int, w: int, d0: float, gx: float, gy: float, seed: int = 0, w
     left = render(1.0, np.zeros(h))
     right = render(1 / (1 - gx), (d0 + gy * y) / (1 - gx))  # u − d(u, y) = x_right
     lo, hi = np.percentile(left, [0.5, 99.5])
-    to8 = lambda im: np.clip((im - lo) / (hi - lo) * 255, 0, 255).round().astype(np.uint8)  # noqa: E731
+
+    def to8(im):
+        return np.clip((im - lo) / (hi - lo) * 255, 0, 255).round().astype(np.uint8)
+
     return to8(left), to8(right), (d0 + gx * x[None] + gy * y[:, None]).astype(np.float32)
 
 
@@ -60,8 +63,11 @@ def plane():
 @pytest.fixture(scope="module")
 def torch_disparity(plane):
     left, right, _ = plane
-    fed = (lambda im: ((torch.from_numpy(im).float() / 255 - torch.tensor(IMAGENET_MEAN))  # noqa: E731
-                       / torch.tensor(IMAGENET_STD)).permute(2, 0, 1)[None])
+
+    def fed(im):
+        return ((torch.from_numpy(im).float() / 255 - torch.tensor(IMAGENET_MEAN)) / torch.tensor(IMAGENET_STD)
+                ).permute(2, 0, 1)[None]
+
     with torch.no_grad():
         return load_psmnet()(fed(left), fed(right))[0, 0].numpy()
 

@@ -95,5 +95,6 @@ def test_cli_and_clear_errors(run_dir, tmp_path):
 def test_a_one_core_run_is_read(run_dir):
     """At -c1 Snakemake says "Provided cores: 1 (use --cores to define parallelism)"."""
     log = latest_log(run_dir)
-    log.write_text(log.read_text().replace("Provided cores: 2", "Provided cores: 1 (use --cores to define parallelism)"))
+    one_core = "Provided cores: 1 (use --cores to define parallelism)"
+    log.write_text(log.read_text().replace("Provided cores: 2", one_core))
     assert read_run(log).cores == 1

@@ -432,7 +432,10 @@ def test_killed_training_reruns_to_the_same_result(tmp_path):
                                          "densify": short})
     # -c1: the job trains on one thread; the target: the scores (no summary, no report)
     command = ["-c1", "--replace-workflow-config", "--configfile"]
-    target = lambda name: str(Layout(tmp_path / name / "results").metrics("tiny", "pgsr"))  # noqa: E731
+
+    def target(name):
+        return str(Layout(tmp_path / name / "results").metrics("tiny", "pgsr"))
+
     r = snakemake(target("straight"), *command, str(runs["straight"]))
     assert r.returncode == 0, r.stderr[-3000:]
 

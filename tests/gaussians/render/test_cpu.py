@@ -39,7 +39,10 @@ def gradcheck_scene() -> tuple[torch.Tensor, ...]:
     compensation floor, z = near) dropped, since finite differences are meaningless there."""
     g = torch.Generator().manual_seed(7)
     cam = camera()
-    rand = lambda *shape: torch.rand(*shape, generator=g, dtype=torch.float64)  # noqa: E731
+
+    def rand(*shape):
+        return torch.rand(*shape, generator=g, dtype=torch.float64)
+
     u = torch.cat([0.1 + 0.8 * rand(24, 2),
                    torch.tensor([[-0.1, 0.5], [1.1, 0.3], [0.4, -0.1], [0.6, 1.1], [-0.4, 0.5], [0.5, 1.4]]),
                    0.2 + 0.6 * rand(10, 2)])
