@@ -27,7 +27,7 @@ def failed_jobs(snakemake_logs: Iterable[str | Path]) -> list[tuple[str, Path]]:
     text = ""
     for path in snakemake_logs:
         try:
-            text += Path(path).read_text(errors="replace")
+            text += Path(path).read_text(errors="replace") + "\n"  # a log cut short ends mid-line
         except OSError:
             pass
     jobs = []

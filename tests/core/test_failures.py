@@ -43,6 +43,10 @@ def test_failed_jobs_are_the_error_blocks_of_the_logs_in_order_once_each(tmp_pat
     assert jobs == [("joint", Path(joint)), ("stereo_depth", Path(stereo)), ("mesh", Path(mesh))]
     assert failed_jobs([rerun, first]) == [("joint", Path(joint)), ("mesh", Path(mesh)), ("stereo_depth", Path(stereo))]
     assert failed_jobs([tmp_path / "nowhere.log"]) == [] and failed_jobs([]) == []
+    cut = tmp_path / "cut.log"  # a log that ends mid-line: the next log's first block is still read
+    cut.write_text(started("joint", 1, joint, "scene=tiny").rstrip("\n"))
+    (tmp_path / "next.log").write_text(error("mesh", 2, mesh).split("\n", 1)[1])  # "Error in rule" its first line
+    assert failed_jobs([cut, tmp_path / "next.log"]) == [("mesh", Path(mesh))]
     # a successful run's log: its jobs started and finished, none failed
     (tmp_path / "ok.log").write_text(started("joint", 1, joint, "scene=tiny") + "Finished jobid: 1 (Rule: joint)\n")
     assert failed_jobs([tmp_path / "ok.log"]) == []

@@ -137,9 +137,6 @@ def rasterizer_json(rows: list[RasterizerTiming]) -> str:
     return json.dumps([asdict(r) for r in rows], indent=2)
 
 
-# --- stereo --------------------------------------------------------------------------------
-
-
 def run_bench_rasterizer(sizes=RASTERIZER_SIZES, backend: str = "auto", repeats: int = 5,
                          as_json: bool = False) -> None:
     """``eve3d bench rasterizer``: the table (or JSON) of :func:`bench_rasterizer`."""
