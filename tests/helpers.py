@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import subprocess
 import sys
@@ -391,3 +392,33 @@ def nonbackground(png: bytes, background: tuple[int, int, int]) -> float:
 
     image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
     return float((np.abs(image - background).max(-1) > 12).mean())
+
+
+def pinhole_camera(width: int = 24, height: int = 18, dtype=None, tilt: float = 0.0):
+    """A rasteriser camera (``CameraTensors``) at the origin looking down +z (optionally rotated
+    about x), float64 unless ``dtype``."""
+    import torch
+
+    from eve3d.gaussians.render.projection import CameraTensors
+
+    dtype = dtype or torch.float64
+    c, s = math.cos(tilt), math.sin(tilt)
+    R = torch.tensor([[1, 0, 0], [0, c, -s], [0, s, c]], dtype=dtype)
+    f = 1.1 * width
+    return CameraTensors(R, torch.zeros(3, dtype=dtype), f, f * 1.05, width / 2 + 0.3, height / 2 - 0.2, width, height)
+
+
+def random_gaussians(n: int, dtype=None, seed: int = 0, spread: float = 0.5, scale=(0.03, 0.12)):
+    """``n`` random Gaussians (means, quats, scales, opacities, colours) in a cube of half-side
+    ``spread`` 2.5 in front of :func:`pinhole_camera`, float64 unless ``dtype``."""
+    import torch
+
+    dtype = dtype or torch.float64
+    g = torch.Generator().manual_seed(seed)
+    means = (torch.rand(n, 3, generator=g, dtype=dtype) - 0.5) * 2 * spread + torch.tensor([0, 0, 2.5], dtype=dtype)
+    quats = torch.randn(n, 4, generator=g, dtype=dtype)
+    scales = scale[0] + (scale[1] - scale[0]) * torch.rand(n, 3, generator=g, dtype=dtype)
+    opacities = 0.2 + 0.75 * torch.rand(n, generator=g, dtype=dtype)
+    colors = torch.rand(n, 3, generator=g, dtype=dtype)
+    return means, quats, scales, opacities, colors
+
