@@ -154,7 +154,7 @@ def _cmd_bench_training(a: argparse.Namespace) -> None:
     from eve3d.tools.bench import training
 
     training.run_bench_training(_config(a), a.stages or training.TRAINING_STAGES, a.steps, a.warmup, a.gaussians,
-                            a.start, a.json)
+                                a.start, a.json)
 
 
 def _cmd_bench_stereo(a: argparse.Namespace) -> None:
@@ -185,8 +185,8 @@ def _cmd_bench_scale(a: argparse.Namespace) -> None:
     from eve3d.tools.bench import scale
 
     scale.run_bench_scale(a.config, a.set, memory=a.memory, kind=a.kind, size=(a.views, a.width, a.height),
-                      iterations=a.iterations, methods=a.methods, gt_points=a.gt_points, protocols=a.protocols,
-                      work=a.work, as_json=a.json)
+                          iterations=a.iterations, methods=a.methods, gt_points=a.gt_points, protocols=a.protocols,
+                          work=a.work, as_json=a.json)
 
 
 # -- argument types: a wrong value is argparse's error, naming the flag ----------------------
@@ -344,14 +344,8 @@ def _add_data_parsers(sub) -> None:
 
 
 def _add_stereo_parsers(sub) -> None:
-    from eve3d.core.settings import (
-        PRIOR_BACKENDS,
-        BaselineSettings,
-        MatchCheck,
-        RenderSettings,
-        SgbmSettings,
-        StereoSettings,
-    )
+    from eve3d.core.settings import (PRIOR_BACKENDS, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings,
+                                     StereoSettings)
 
     s = _stage(sub, "stereo-render", _cmd_stereo_render,
                "right views of virtual stereo pairs, rendered by the pretrained model",

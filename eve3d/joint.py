@@ -152,7 +152,7 @@ def on_prior_surface(model: GaussianModel, view: View, priors: PriorState, margi
 def loss_terms(trainer: Trainer, settings: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None,
                exposure: torch.Tensor | None = None) -> LossTerms:
     """The loss function of the joint stage (see the module docstring). ``exposure``: the
-    (views, 3, 4) affine colour correction of each view, when ``s.exposure``."""
+    (views, 3, 4) affine colour correction of each view, when ``settings.exposure``."""
     train_set = set(trainer.views.train_ids)
 
     def terms(step: int, view: View, out: RenderOutput) -> dict[str, torch.Tensor]:
@@ -209,8 +209,8 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     confident = priors.confidence[i] & covered
     target = priors.depth(i) if joint else priors.star.depth[i]
     if settings.prior_weight and confident.any():
-        target_normal = depth_to_normal(target, view.cam,
-                                        settings.prior_normal_span) if joint else priors.star.normal[i]
+        target_normal = (depth_to_normal(target, view.cam, settings.prior_normal_span) if joint
+                         else priors.star.normal[i])
         normal = torch.nn.functional.normalize(out.normal, dim=-1)
         depth_term = ((target - out.depth).abs() * confident).sum() / confident.sum()
         on_normal = confident & (target_normal.norm(dim=-1) > 0)
@@ -293,8 +293,7 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
                                  settings.prior_normal_span)
         if settings.init == "priors":
             points, colors = prior_points(loaded, views.cameras, views.images, views.train_ids,
-                                          settings.init_prior_points,
-                                          rng)
+                                          settings.init_prior_points, rng)
         prior = PriorState(state, views, loaded, settings) if settings.priors != "none" else None
         trainer.checkpoint.depend_on(loaded.digest)
     with phase("initial Gaussians"):

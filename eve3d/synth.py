@@ -403,6 +403,6 @@ def run_synth(settings: SyntheticSettings, *, kind: str, out: Path, images_only:
     """The ``synth`` stage: the generated scene ``kind``, sized by ``settings``, into ``out``."""
     with phase("generate"):
         generate(kind, Path(out), views=settings.views, width=settings.width, height=settings.height,
-                 seed=settings.seed, images_only=images_only,
-                 arc=settings.arc, surface_samples=settings.surface_samples)
+                 seed=settings.seed, images_only=images_only, arc=settings.arc,
+                 surface_samples=settings.surface_samples)
     print(f"wrote {out}")

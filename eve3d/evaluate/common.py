@@ -10,6 +10,10 @@ from eve3d.core.colormap import hot_r
 from eve3d.core.errors import Eve3dError
 
 
+GIVEN_TAU = "given (evaluate.tau)"
+"""``tau_rule`` of a τ the user set."""
+
+
 def nearest_distances(query: np.ndarray, reference: np.ndarray, upper_bound: float = np.inf,
                       chunk: int | None = None) -> np.ndarray:
     """Distance from each query point to its nearest reference point; ``inf`` where none is

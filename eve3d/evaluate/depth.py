@@ -124,11 +124,12 @@ def prior_agreement(scene, maps_dir: Path, neighbours: int = 2, stride: int = 4,
                     min_confidence: float = MeshSettings.min_confidence) -> dict:
     """Without ground truth: how far neighbouring views' depth maps agree. Every
     ``stride``-th confident pixel of a view is back-projected and projected into each of its
-    ``neighbours`` (``eve3d.gaussians.neighbours``, :func:`eve3d.gaussians.geometry.reproject`); where it lands on a confident pixel of the
-    neighbour, the relative difference |z − D_n| / D_n between its depth there and the
-    neighbour's map counts. Returns the median of those differences, the share over 5 %,
-    the density (confident / all pixels) and how many pixels were compared. A surface seen
-    by both views agrees; a wrong depth in either does not (occlusions count against too)."""
+    ``neighbours`` (``eve3d.gaussians.neighbours``; :func:`eve3d.gaussians.geometry.reproject`);
+    where it lands on a confident pixel of the neighbour, the relative difference
+    |z − D_n| / D_n between its depth there and the neighbour's map counts. Returns the median
+    of those differences, the share over 5 %, the density (confident / all pixels) and how
+    many pixels were compared. A surface seen by both views agrees; a wrong depth in either
+    does not (occlusions count against too)."""
     import torch
 
     from eve3d.gaussians.geometry import CameraStack, reproject

@@ -18,8 +18,8 @@ from eve3d.core.chunking import chunks
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
 from eve3d.core.scene import Camera, Scene
-from eve3d.evaluate.protocol import EvalInputs, Protocol
 from eve3d.evaluate.common import nearest_distances, write_error_maps
+from eve3d.evaluate.protocol import EvalInputs, Protocol
 
 MASK_DILATION = 24
 """Radius (px) of the disk the object masks are dilated by before culling."""

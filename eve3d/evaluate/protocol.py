@@ -12,10 +12,6 @@ from eve3d.core.scene import Scene
 from eve3d.core.settings import EvalSettings
 from eve3d.core.settings_fields import flag
 
-GIVEN_TAU = "given (evaluate.tau)"
-"""``tau_rule`` of a τ the user set."""
-
-
 @dataclass
 class EvalInputs:
     """What one evaluation job is given; each protocol names the fields it needs."""

@@ -27,8 +27,8 @@ from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
 from eve3d.core.raycast import MeshRaycaster, seen_counts
 from eve3d.core.surface import sample_surface
-from eve3d.evaluate.protocol import GIVEN_TAU, EvalInputs, Protocol
-from eve3d.evaluate.common import COLOUR_RANGE, distance_metrics, mesh_distances, write_error_maps
+from eve3d.evaluate.common import COLOUR_RANGE, GIVEN_TAU, distance_metrics, mesh_distances, write_error_maps
+from eve3d.evaluate.protocol import EvalInputs, Protocol
 
 MAX_DRAWS = 8
 """Batches of ``evaluate.samples`` drawn at most per surface while too few samples are kept."""

@@ -29,8 +29,8 @@ import numpy as np
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import read_mesh
 from eve3d.core.scene import Scene
-from eve3d.evaluate.protocol import GIVEN_TAU, EvalInputs, Protocol
-from eve3d.evaluate.common import COLOUR_RANGE, fscore, nearest_distances, write_error_maps
+from eve3d.evaluate.common import COLOUR_RANGE, GIVEN_TAU, fscore, nearest_distances, write_error_maps
+from eve3d.evaluate.protocol import EvalInputs, Protocol
 
 TAU: dict[str, float] = {"Barn": 0.01, "Caterpillar": 0.005, "Church": 0.025, "Courthouse": 0.025,
                          "Ignatius": 0.003, "Meetingroom": 0.01, "Truck": 0.005}

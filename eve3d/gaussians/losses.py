@@ -189,7 +189,7 @@ def depth_confirmation(depth: torch.Tensor, ref_grey: torch.Tensor, ref: CameraT
     shape = (len(nbrs), *depth.shape)
     seen = ((depth > 0).reshape(1, -1) & (z > 0) & nbrs.inside(uv)).reshape(shape)
     sampled = sample_maps([torch.stack([d, c.to(d.dtype), g[..., 0]], -1) for d, c, g in
-                       zip(nbr_depths, nbr_confident, nbr_greys)], uv).reshape(*shape, 3)
+                           zip(nbr_depths, nbr_confident, nbr_greys)], uv).reshape(*shape, 3)
     theirs, confident, grey = sampled.unbind(-1)
     agrees = seen & (confident >= 1 - 1e-6) & ((z.reshape(shape) - theirs).abs() <= tolerance * theirs)
     cov, var_a, var_b = window_moments(

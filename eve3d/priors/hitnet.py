@@ -83,8 +83,7 @@ class HitnetStereo:
             self.warned = True
             warn(f"{self.path.name}: a pair's disparities reach {width:.0f} px at the model's width of {self.size[1]} px, "
                  f"beyond the {self.settings.max_disparity:g} px it handles (stereo.hitnet.max_disparity): the nearest "
-                 f"surfaces "
-                 f"may get no depth; an export of a smaller size, or a smaller stereo.target_disparity, narrows it")
+                 f"surfaces may get no depth; an export of a smaller size, or a smaller stereo.target_disparity, narrows it")
         right = np.pad(right, ((0, 0), (shift, 0)) + ((0, 0),) * (right.ndim - 2))[:, :right.shape[1]]
         disp_l = self.disparity(left, right)
         disp_r = mirrored(self.disparity, left, right)

@@ -106,8 +106,8 @@ class MccnnStereo:
         low, high = max(int(np.floor(search[0])), 0), int(np.ceil(search[1]))
         cost_l, cost_r = self.costs(left, right, low, high)
         # both ≥ low ≥ 0: no negative disparity to clear
-        disp_l, disp_r = (winner(semi_global(c, self.settings.p1,
-                                             self.settings.p2)) + np.float32(low) for c in (cost_l, cost_r))
+        p1, p2 = self.settings.p1, self.settings.p2
+        disp_l, disp_r = (winner(semi_global(c, p1, p2)) + np.float32(low) for c in (cost_l, cost_r))
         ok = left_right_consistent(disp_l, disp_r, self.settings.lr_threshold)
         ok &= local_std(left, self.texture_window) >= self.min_texture
         return disp_l, ok.astype(np.float32)

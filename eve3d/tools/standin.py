@@ -86,10 +86,9 @@ def write_dtu_release(scene: Scene, root: Path, name: str = "scan24", crop: int 
     ``Points/stl`` and ``ObsMask`` beside the scan folders. Returns the scan folder."""
     from dataclasses import replace
 
+    from eve3d.core.datasets import dtu_scan
     from eve3d.core.fileio import read_image, write_image
     from eve3d.core.io.colmap import write_colmap
-
-    from eve3d.core.datasets import dtu_scan
 
     scan, folder = dtu_scan(name), root / name
     scale = dtu_scale_mat()

@@ -46,9 +46,9 @@ COLMAP = DatasetFormat("colmap", lambda root: True, _read_colmap)
 @functools.cache
 def formats() -> tuple[DatasetFormat, ...]:
     """The dataset layouts, tried in this order: the ``FORMAT`` that each module of this
-    package declares (``dtu``: a ``cameras.npz``; ``tnt``: a ``{Scene}_trans.txt`` beside the
-    images), by module name, then :data:`COLMAP`. Read when first needed: the readers import
-    this module for :class:`DatasetFormat`."""
+    package declares (its ``detect`` says how the layout is told), by module name, then
+    :data:`COLMAP`. Read when first needed: the readers import this module for
+    :class:`DatasetFormat`."""
     names = (info.name for info in pkgutil.iter_modules([str(Path(__file__).parent)]))
     modules = (importlib.import_module(f"{__package__}.{name}") for name in names)
     return (*(module.FORMAT for module in modules if hasattr(module, "FORMAT")), COLMAP)

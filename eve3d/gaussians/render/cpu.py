@@ -31,10 +31,11 @@ SOURCES = [Path(__file__).parent / "csrc" / name
 def build_tag() -> str:
     """A short hash of this CPU's model and instruction sets and of this checkout's folder. The
     extension is compiled for the machine it runs on (``-march=native`` on x86-64: faster
-    compositing than the generic x86-64 build, docs/results.md), so a build cache shared between machines (a
-    cluster's home folder) keeps one build per kind of CPU rather than loading one that another
-    CPU cannot execute; and one per checkout, since torch rebuilds when the sources' paths
-    change (two clones sharing one build rebuilt each other's, minutes each time)."""
+    compositing than the generic x86-64 build, docs/results.md), so a build cache shared
+    between machines (a cluster's home folder) keeps one build per kind of CPU rather than
+    loading one that another CPU cannot execute; and one per checkout, since torch rebuilds
+    when the sources' paths change (two clones sharing one build rebuilt each other's,
+    minutes each time)."""
     import hashlib
 
     ident = str(Path(__file__).parent) + platform.machine() + platform.processor()
