@@ -415,18 +415,18 @@ def train_plane(dataset, out, **overrides):
 @pytest.mark.slow
 def test_pgsr_on_a_plane_has_no_depth_bias(plane_dataset, tmp_path):
     """The issue's bound: a textured plane 2 units away, trained briefly with ``pgsr`` at the
-    ``cpu`` preset: the rendered depth's median signed error within 0.1 % (measured +0.02 to
-    +0.06 % over seeds 0–3). Started from 3DGS's isotropic balls instead of discs
-    (``init_thickness: 1``), the same run renders the plane 0.3 % too near or more, on average
-    over seeds 0–3: the cause this guards against. One seed alone is not a measurement of it:
-    the balls' error moves with the split draws and with float rounding (seeds 0–3: −0.32,
-    −0.32, −0.30, −0.37 % before issue 21's vectorised compositing and C++ SSIM; −0.25, −0.52,
-    −0.25, −0.48 % after; the mean −0.33 and −0.38 %). At 3/4 of the images' size (the
-    ``cpu`` preset since issue 21) the balls drew −0.35, −0.37, −0.18, −0.29 %, the discs
-    stayed within 0.1 %."""
+    ``cpu`` preset: the rendered depth's median signed error within 0.1 %. Started from 3DGS's
+    isotropic balls instead of discs (``init_thickness: 1``), the same run fails that bound on
+    every seed, always too near: the cause this guards against. How far too near moves with the
+    split draws and with float rounding, which changes with the CPU the C++ rasteriser was
+    compiled for (``-march=native``): the mean over seeds 0–3 was −0.33, −0.38 and −0.30 % on
+    earlier machines and −0.22 % on an AMD EPYC (seeds 0–7 there: −0.34, −0.21, −0.14, −0.18,
+    −0.43, −0.50, −0.29, −0.38 %; the same code built for generic x86-64 drew −0.29, −0.31,
+    −0.45, −0.18 % on seeds 0–3; the discs +0.05 to +0.09 %), so a bound on the mean of four
+    seeds is a draw, and the test asserts the separation instead."""
     acc = train_plane(plane_dataset, tmp_path / "discs")
     assert acc["density"] > 0.9
     assert abs(acc["median_signed_error"]) < 0.001
     balls = [train_plane(plane_dataset, tmp_path / f"balls{seed}", init_thickness=1.0, seed=seed)["median_signed_error"]
              for seed in range(4)]
-    assert np.mean(balls) < -0.003, balls
+    assert max(balls) < -0.001, balls
