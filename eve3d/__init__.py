@@ -11,9 +11,9 @@ def _open3d_without_its_plotly_viewer() -> None:
     a COLMAP model (docs/results.md, "Figures behind the code's choices"). eve3d never opens it,
     so that one module is a placeholder that says so when called; the rest of open3d is as
     shipped. Set once here, before any module of the package imports open3d."""
-    name = "open3d.visualization.draw_plotly"
-    if name in sys.modules or "open3d" in sys.modules:
+    if "open3d" in sys.modules:  # imported already, viewer and all
         return
+    name = "open3d.visualization.draw_plotly"
     viewer = types.ModuleType(name, "placeholder: eve3d does not load open3d's plotly viewer (eve3d/__init__.py)")
 
     def unavailable(*args, **kwargs):
