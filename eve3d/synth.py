@@ -64,11 +64,13 @@ class Material:
         return a * (1 - w) + b * w
 
 
-def _hash(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, seed: int) -> np.ndarray:
-    """Integer lattice → uniform [0,1) (a splitmix64-style mix)."""
+LATTICE_KEYS = (np.uint64(0x9E3779B97F4A7C15), np.uint64(0xC2B2AE3D27D4EB4F), np.uint64(0x165667B19E3779F9))
+"""Each lattice axis's odd multiplier in the hash of a lattice point."""
+
+
+def _mix(h: np.ndarray) -> np.ndarray:
+    """A lattice point's combined key (uint64, changed in place) → uniform [0,1) (a splitmix64-style mix)."""
     with np.errstate(over="ignore"):
-        h = (ix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) ^ (iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F))
-        h ^= iz.astype(np.uint64) * np.uint64(0x165667B19E3779F9) ^ np.uint64(seed * 0x27D4EB2F165667C5 & (2**64 - 1))
         h ^= h >> np.uint64(31)
         h *= np.uint64(0xBF58476D1CE4E5B9)
         h ^= h >> np.uint64(29)
@@ -76,16 +78,23 @@ def _hash(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, seed: int) -> np.ndarr
 
 
 def value_noise(p: np.ndarray, seed: int) -> np.ndarray:
-    """Smooth trilinear value noise in [0,1) at points p (...,3)."""
+    """Smooth trilinear value noise in [0,1) at points p (...,3). The hash of a lattice point
+    XORs one key per axis, so each axis's two keys (and weights) are computed once for the
+    eight corners."""
     i = np.floor(p).astype(np.int64)
     f = p - i
     f = f * f * (3 - 2 * f)
+    with np.errstate(over="ignore"):
+        keys = [[(i[..., axis] + d).astype(np.uint64) * key for d in (0, 1)] for axis, key in enumerate(LATTICE_KEYS)]
+        salt = np.uint64(seed * 0x27D4EB2F165667C5 & (2**64 - 1))
+    keys[2] = [k ^ salt for k in keys[2]]
+    weights = [(1 - f[..., axis], f[..., axis]) for axis in range(3)]
     out = np.zeros(p.shape[:-1])
     for dx in (0, 1):
         for dy in (0, 1):
+            key_xy, weight_xy = keys[0][dx] ^ keys[1][dy], weights[0][dx] * weights[1][dy]
             for dz in (0, 1):
-                w = (f[..., 0] if dx else 1 - f[..., 0]) * (f[..., 1] if dy else 1 - f[..., 1]) * (f[..., 2] if dz else 1 - f[..., 2])
-                out += w * _hash(i[..., 0] + dx, i[..., 1] + dy, i[..., 2] + dz, seed)
+                out += weight_xy * weights[2][dz] * _mix(key_xy ^ keys[2][dz])
     return out
 
 
