@@ -46,6 +46,12 @@ def object_dataset(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def room_dataset(tmp_path_factory) -> Path:
+    """The embedded default room scene at the CPU preset's size (320×240, 32 views)."""
+    return made_once(tmp_path_factory, "data/room", lambda out: generate("room", out))
+
+
+@pytest.fixture(scope="session")
 def object_scene(object_dataset):
     return load_scene(object_dataset)
 

@@ -1,6 +1,5 @@
 """eve3d.mesh: depth maps fused into a TSDF and its mesh (the grid's blocks, the region, the mesh's order and clusters)."""
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,18 +10,12 @@ from eve3d.synth import generate
 from tests.helpers import run_cli
 
 
-@pytest.fixture(scope="module")
-def room_dataset(tmp_path_factory) -> Path:
-    """The built-in room scene at its default size."""
-    return generate("room", tmp_path_factory.mktemp("data") / "room")
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("which", ["object", "room"])
-def test_oracle_tsdf_mesh_scores_high(which, object_dataset, room_dataset, tmp_path):
+def test_oracle_tsdf_mesh_scores_high(which, request, tmp_path):
     """The exact depth of the built-in scenes, fused at the cpu preset's coarse voxel,
     scores F ≥ 0.98 under the synthetic protocol."""
-    dataset = object_dataset if which == "object" else room_dataset
+    dataset = request.getfixturevalue(f"{which}_dataset")  # each case makes only its own scene
     priors, mesh, metrics = tmp_path / "priors", tmp_path / "mesh.ply", tmp_path / "metrics.json"
     r = run_cli("stereo-depth", "--backend", "oracle", "--scene", dataset, "--out", priors)
     assert r.returncode == 0, r.stderr
