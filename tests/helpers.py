@@ -34,6 +34,14 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(["eve3d", *map(str, args)], code, out.getvalue(), err.getvalue())
 
 
+WORKFLOW_CORES = "-c1" if "PYTEST_XDIST_WORKER" in os.environ else "-c2"
+"""The cores a workflow test's real run gets: under ``make test``'s workers (three on two
+cores, each torch on one thread, tests/conftest.py) a worker's share, both cores when the test
+runs alone. At ``-c2`` there, each run's two-thread training jobs competed with the other
+workers and the suite took 1.14× the wall and 1.19× the CPU time (docs/development.md, "Tests");
+concurrent jobs stay tested by the Slurm run (``--jobs 4``)."""
+
+
 def snakemake(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
     """Run this checkout's workflow (``workflow/Snakefile``) with ``args``."""
     return subprocess.run([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), *args],

@@ -16,7 +16,7 @@ from eve3d.core.layout import EVALUATION, RECORD, TRAINING, Layout
 from eve3d.synth import generate
 from eve3d.core.datasets import BENCHMARKS
 from eve3d.tools.standin import standin, write_log, write_standin
-from tests.helpers import TINY_START, folder_report, open_report, run_cli, snakemake
+from tests.helpers import TINY_START, WORKFLOW_CORES, folder_report, open_report, run_cli, snakemake
 
 BENCHMARK_SCENES = {
     "dtu": ["scan24", "scan37", "scan40", "scan55", "scan63", "scan65", "scan69", "scan83", "scan97", "scan105",
@@ -183,7 +183,7 @@ def test_a_wrong_trajectory_stops_before_training(downloads, object_views, tmp_p
     write_log(log, poses)
     cfg = tmp_path / "config.yaml"
     cfg.write_text(yaml.safe_dump(benchmark_config("tnt", root, tmp_path / "results", **TINY)))
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
+    r = snakemake(WORKFLOW_CORES, "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode != 0 and expected in r.stdout + r.stderr, (r.stdout + r.stderr)[-3000:]
     assert not (tmp_path / "results" / "Barn" / "pretrain").exists()
 
@@ -198,7 +198,7 @@ def test_each_benchmark_runs_end_to_end(downloads, tmp_path, name):
     config["methods"] = [m for m in config["methods"] if m != "pgsr"]
     cfg = tmp_path / "config.yaml"
     cfg.write_text(yaml.safe_dump(config))
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
+    r = snakemake(WORKFLOW_CORES, "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
     layout, scene = Layout(tmp_path / "results"), MINIATURE[name]
     rows = list(csv.DictReader(open(layout.summary())))

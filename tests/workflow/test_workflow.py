@@ -20,7 +20,7 @@ from eve3d.core.layout import EVALUATION, HELD_OUT_DIR, MESH_VIEWS_DIR, PRETRAIN
 from eve3d.synth import generate
 from eve3d.tools.profile import log_jobs, read_run
 from eve3d.tools.standin import dtu_scale_mat, write_dtu_layout
-from tests.helpers import REPO, SNAKEFILE, run_cli, snakemake, write_config
+from tests.helpers import REPO, SNAKEFILE, WORKFLOW_CORES, run_cli, snakemake, write_config
 
 # -- what each rule writes ---------------------------------------------------------------------
 
@@ -159,7 +159,7 @@ def test_tiny_training_run(tmp_path):
                               "init_prior_points": 3000, "densify": short})
     results = tmp_path / "results"
     layout = Layout(results)
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
+    r = snakemake(WORKFLOW_CORES, "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
     run_log = re.search(r"Complete log\(s\): (\S+)", r.stderr).group(1)
     rows = list(csv.DictReader(open(layout.summary())))
@@ -250,7 +250,7 @@ def test_tiny_run_with_a_failed_scene_then_rerun_one_stage(tmp_path):
         cv2.imwrite(str(photos / f"{i:03d}.png"), np.random.default_rng(i).integers(0, 255, (48, 64, 3), np.uint8))
     scenes = yaml.safe_load(write_config(tmp_path).read_text())["scenes"]
     cfg = write_config(tmp_path, scenes={**scenes, "noise": {"path": str(tmp_path / "noise"), "methods": ["pgsr"]}})
-    r = snakemake("-c2", "--keep-going", "--configfile", str(cfg), "--replace-workflow-config")
+    r = snakemake(WORKFLOW_CORES, "--keep-going", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode != 0
     results = tmp_path / "results"
     layout = Layout(results)
@@ -265,7 +265,7 @@ def test_tiny_run_with_a_failed_scene_then_rerun_one_stage(tmp_path):
     assert "noise" in page and "SfM could not register any image pair" in page
 
     tiny = write_config(tmp_path)  # the failed scene left out
-    r = snakemake("-c2", "--configfile", str(tiny), "--replace-workflow-config")
+    r = snakemake(WORKFLOW_CORES, "--configfile", str(tiny), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
     assert not layout.failures().exists()
     rows = list(csv.DictReader(open(layout.summary())))
@@ -279,7 +279,7 @@ def test_tiny_run_with_a_failed_scene_then_rerun_one_stage(tmp_path):
     assert float(rows[0]["fscore"]) == pytest.approx(m["fscore"])
     mesh_time = (results / "tiny/oracle/mesh.ply").stat().st_mtime_ns
     prior_time = (results / "tiny/priors/oracle/000.npz").stat().st_mtime_ns
-    r = snakemake("-c2", "--configfile", str(tiny), "--replace-workflow-config", "--forcerun", "mesh")
+    r = snakemake(WORKFLOW_CORES, "--configfile", str(tiny), "--replace-workflow-config", "--forcerun", "mesh")
     assert r.returncode == 0, r.stderr[-3000:]
     assert (results / "tiny/oracle/mesh.ply").stat().st_mtime_ns > mesh_time
     assert (results / "tiny/priors/oracle/000.npz").stat().st_mtime_ns == prior_time
@@ -313,7 +313,7 @@ def test_oracle_scores_near_perfectly_on_scenes_brought_by_a_user(tmp_path):
         assert (root / "sparse/0/cameras.txt").exists() and not (root / "eve3d_scene.json").exists()
         scenes[kind] = {"path": str(root), "gt_mesh": str(gt), "kind": "object" if kind == "vase" else "scene"}
     cfg = write_config(tmp_path, scenes=scenes, mesh={"coarsen": 5})
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
+    r = snakemake(WORKFLOW_CORES, "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
     results = tmp_path / "results"
     for kind in scenes:
@@ -411,16 +411,12 @@ def test_killed_training_reruns_to_the_same_result(tmp_path):
     same seed), resumed from the job's checkpoint, and every artefact written before the kill
     byte for byte as it was."""
     import signal
-    import subprocess
-    import sys
     import time
 
     import psutil
     import torch
 
-    from eve3d.core.layout import Layout
     from eve3d.gaussians.model import GaussianModel
-    from tests.helpers import REPO, SNAKEFILE, snakemake, write_config
 
     short = {"refine_start": 10, "refine_every": 10, "refine_stop": 40, "reset_every": 0}
     runs = {}
@@ -483,7 +479,7 @@ def test_photos_and_their_path_run_to_meshes_and_held_out_scores(object_photos, 
                        pretrain={"iterations": 80, "reinit_at": [], "simplify_at": [60], "densify": short},
                        joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "prior_from": 5, "joint_from": 20,
                               "init_prior_points": 3000, "densify": short})
-    r = snakemake("-c2", "--configfile", str(cfg), "--replace-workflow-config")
+    r = snakemake(WORKFLOW_CORES, "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode == 0, r.stderr[-3000:]
     layout = Layout(tmp_path / "results")
     scene = load_scene(layout.sfm("mine"))
