@@ -60,25 +60,26 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
     from eve3d.core.settings import PretrainSettings, RenderSettings, StereoSettings
     from eve3d.core.settings_fields import pick
-    from eve3d.stereo import run_render
+    from eve3d.stereo import run_stereo_render
 
     config = _config(a)
     rendering = pick(RenderSettings, _settings(a, PretrainSettings, "pretrain", config))  # as the model was trained
-    run_render(_settings(a, StereoSettings, "stereo", config), rendering, scene=a.scene, model=a.model, out=a.out)
+    run_stereo_render(_settings(a, StereoSettings, "stereo", config), rendering, scene=a.scene, model=a.model,
+                      out=a.out)
 
 
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
     from eve3d.core.settings import StereoSettings
-    from eve3d.stereo import run_depth
+    from eve3d.stereo import run_stereo_depth
 
-    run_depth(_settings(a, StereoSettings, "stereo"), scene=a.scene, out=a.out, stereo=a.stereo, gt_mesh=a.gt_mesh,
-              preview=not a.no_preview)
+    run_stereo_depth(_settings(a, StereoSettings, "stereo"), scene=a.scene, out=a.out, stereo=a.stereo,
+                     gt_mesh=a.gt_mesh, preview=not a.no_preview)
 
 
 def _cmd_export_stereo(a: argparse.Namespace) -> None:
-    from eve3d.stereo import run_export
+    from eve3d.stereo import run_export_stereo
 
-    run_export(a.size, a.max_disparity, weights=a.weights, out=a.out)
+    run_export_stereo(a.size, a.max_disparity, weights=a.weights, out=a.out)
 
 
 def _cmd_pretrain(a: argparse.Namespace) -> None:
@@ -127,10 +128,10 @@ def _cmd_profile(a: argparse.Namespace) -> None:
 
 
 def _cmd_summary(a: argparse.Namespace) -> None:
-    from eve3d.report import run_show, run_summary
+    from eve3d.report import run_show_summary, run_summary
 
     if a.show:
-        run_show(summary=a.out)
+        run_show_summary(summary=a.out)
     else:
         run_summary(a.metrics, out=a.out, failed=a.failed)
 

@@ -299,8 +299,7 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
     with phase("initial Gaussians"):
         if settings.init != "priors":
             points, colors = initial_points(scene, settings.init_random_points, rng, settings.init_drop_isolated)
-        state.set_model(GaussianModel.from_points(points, colors, settings.sh_degree,
-                                                  thickness=settings.init_thickness))
+        trainer.start_from(points, colors)
     exposure = None
     if settings.exposure:
         exposure = state.add_extra("exposure", torch.eye(3, 4).repeat(len(views), 1, 1), settings.exposure_lr)

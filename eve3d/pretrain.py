@@ -91,14 +91,13 @@ def setup_pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> P
         points, colors = initial_points(scene, settings.init_random_points, rng, settings.init_drop_isolated)
         if colors is not None:  # the sparse points' photo colours, into the curve's grey levels
             colors = tone[np.round(colors * 255).astype(np.uint8)] / 255.0
-        state.set_model(GaussianModel.from_points(points, colors, settings.sh_degree,
-                                                  thickness=settings.init_thickness))
+        trainer.start_from(points, colors)
 
     def events(step: int) -> None:
         if step in settings.reinit_at:
             count = settings.reinit_points or len(trainer.model)
             pts, cols = depth_points(trainer, count)
-            state.set_model(GaussianModel.from_points(pts, cols, settings.sh_degree, thickness=settings.init_thickness))
+            trainer.start_from(pts, cols)
             print(f"\npretrain: step {step}: re-initialised {len(pts)} Gaussians from rendered depth", file=sys.stderr)
         if step in settings.simplify_at:
             weight = blend_weights(trainer.model, [views[i] for i in views.train_ids], settings)

@@ -15,7 +15,8 @@ from pathlib import Path
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_dir
-from eve3d.core.io.colmap import find_colmap_model, import_pycolmap, match_features
+from eve3d.core.io.colmap import (extraction_options, find_colmap_model, import_pycolmap, mapping_options,
+                                  match_features)
 from eve3d.core.io.loader import METADATA
 from eve3d.core.photos import import_photos, scan_photos, write_pyramid
 from eve3d.core.settings import SfmSettings
@@ -65,21 +66,16 @@ def _reconstruct(photos: list[Path], work: Path, settings: SfmSettings) -> Path:
     db = work / "database.db"
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = settings.camera_model
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.max_image_size = settings.max_image_size
-    extraction.num_threads = settings.threads
     with phase("features"):
         pycolmap.extract_features(str(db), str(image_dir), image_names=names,
                                   camera_mode=(pycolmap.CameraMode.PER_FOLDER if settings.single_camera
                                                else pycolmap.CameraMode.AUTO),
-                                  reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+                                  reader_options=reader, extraction_options=extraction_options(settings),
+                                  device=pycolmap.Device.cpu)
     with phase("matching"):
         match_features(db, settings)
-    options = pycolmap.IncrementalPipelineOptions()
-    options.random_seed = settings.seed
-    options.num_threads = settings.threads
     with phase("mapping"):
-        models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), options)
+        models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), mapping_options(settings))
     if not models:
         raise Eve3dError(f"{photos[0].parent}: SfM could not register any image pair (too little texture or overlap?)")
     best_id, best = max(models.items(), key=lambda kv: kv[1].num_reg_images())

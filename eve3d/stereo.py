@@ -28,6 +28,7 @@ from eve3d.core.settings import PRIOR_BACKENDS, BaselineSettings, MatchCheck, Re
 from eve3d.core.settings_fields import pick
 from eve3d.core.timing import phase
 from eve3d.gaussians.neighbours import select_neighbours
+from eve3d.priors.matching import grey
 
 
 def right_camera(cam: Camera, baseline: float) -> Camera:
@@ -99,9 +100,9 @@ def warped_ncc(left: np.ndarray, right: np.ndarray, disp: np.ndarray, margin: in
     h, w = disp.shape
     xs = np.arange(w, dtype=np.float32)[None, :] + margin - disp.astype(np.float32)
     ys = np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w))
-    warped = cv2.remap(_grey(right), np.ascontiguousarray(xs), np.ascontiguousarray(ys), cv2.INTER_LINEAR,
+    warped = cv2.remap(grey(right), np.ascontiguousarray(xs), np.ascontiguousarray(ys), cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return _window_ncc(_grey(left), warped, window)
+    return _window_ncc(grey(left), warped, window)
 
 
 def neighbour_ncc(cam: Camera, photo: np.ndarray, depth: np.ndarray, neighbours: list[tuple[Camera, np.ndarray]],
@@ -115,20 +116,16 @@ def neighbour_ncc(cam: Camera, photo: np.ndarray, depth: np.ndarray, neighbours:
 
     h, w = depth.shape
     points = cam.backproject(depth).reshape(-1, 3)
-    grey = _grey(photo)
+    photo_grey = grey(photo)
     out = np.full((len(neighbours), h, w), -1.0, np.float32)
     for k, (other, image) in enumerate(neighbours):
         uv, z = other.project(points)
         inside = other.in_image(uv, z).reshape(h, w) & (depth > 0)
         maps = (uv.reshape(h, w, 2) - 0.5).astype(np.float32)
-        warped = cv2.remap(_grey(image), np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]),
+        warped = cv2.remap(grey(image), np.ascontiguousarray(maps[..., 0]), np.ascontiguousarray(maps[..., 1]),
                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        out[k] = np.where(inside, _window_ncc(grey, warped, window), -1)
+        out[k] = np.where(inside, _window_ncc(photo_grey, warped, window), -1)
     return out
-
-
-def _grey(image: np.ndarray) -> np.ndarray:
-    return (image.mean(-1) if image.ndim == 3 else image).astype(np.float32)
 
 
 def _window_ncc(photo: np.ndarray, other: np.ndarray, window: int) -> np.ndarray:
@@ -137,12 +134,11 @@ def _window_ncc(photo: np.ndarray, other: np.ndarray, window: int) -> np.ndarray
     scores 1; a textured one against a flat one scores 0."""
     import cv2
 
-    from eve3d.gaussians.losses import FLAT_STD, window_moments
+    from eve3d.gaussians.losses import FLAT_STD, window_ncc
 
-    cov, va, vb = window_moments(photo, other, lambda x: cv2.blur(x, (window, window)))
+    ncc, var_photo, var_other = window_ncc(photo, other, lambda x: cv2.blur(x, (window, window)))
     flat = (FLAT_STD * 255) ** 2
-    ncc = np.where(vb > flat, cov / np.sqrt(va * vb + 1e-12), 0)
-    return np.where(va > flat, ncc, 1).astype(np.float32)
+    return np.where(var_photo > flat, np.where(var_other > flat, ncc, 0), 1).astype(np.float32)
 
 
 def near_jump(disp: np.ndarray, valid: np.ndarray, jump: float, window: int) -> np.ndarray:
@@ -191,7 +187,7 @@ def lit(photo: np.ndarray, min_light: float) -> np.ndarray:
     """Pixels whose 3×3 neighbourhood in ``photo`` has no grey level below ``min_light``."""
     import cv2
 
-    return cv2.erode((_grey(photo) >= min_light).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return cv2.erode((grey(photo) >= min_light).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
 
 
 def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
@@ -281,7 +277,8 @@ def left_alpha(stereo_dir: Path, cam: Camera) -> np.ndarray:
     return alpha
 
 
-def run_render(settings: StereoSettings, rendering: RenderSettings, *, scene: Path, model: Path, out: Path) -> None:
+def run_stereo_render(settings: StereoSettings, rendering: RenderSettings, *, scene: Path, model: Path,
+                      out: Path) -> None:
     """The ``stereo_render`` stage: right views of ``scene`` rendered by the pretrained ``model``
     (``rendering``: as it was trained) into ``out``."""
     from eve3d.core.io import load_scene
@@ -294,8 +291,8 @@ def run_render(settings: StereoSettings, rendering: RenderSettings, *, scene: Pa
     print(f"wrote {len(b)} right views to {out}/right (baseline {min(b):.4g} to {max(b):.4g})")
 
 
-def run_depth(settings: StereoSettings, *, scene: Path, out: Path, stereo: Path | None = None,
-              gt_mesh: Path | None = None, preview: bool = True) -> None:
+def run_stereo_depth(settings: StereoSettings, *, scene: Path, out: Path, stereo: Path | None = None,
+                     gt_mesh: Path | None = None, preview: bool = True) -> None:
     """The ``stereo_depth`` stage: ``settings.backend``'s depth priors of ``scene`` into
     ``out`` (the backend's row in ``PRIOR_BACKENDS`` says where it lives and what it reads):
     from the right views in ``stereo``, or from ``gt_mesh`` (else the scene's own)."""
@@ -317,7 +314,7 @@ def run_depth(settings: StereoSettings, *, scene: Path, out: Path, stereo: Path 
     print(f"wrote {len(loaded.cameras)} depth maps to {out}")
 
 
-def run_export(size: tuple[int, int] | None, max_disparity: int, *, weights: str | None, out: str) -> None:
+def run_export_stereo(size: tuple[int, int] | None, max_disparity: int, *, weights: str | None, out: str) -> None:
     """``eve3d export-stereo psmnet``: PSMNet to ONNX at ``size`` (HEIGHT, WIDTH; None: any)
     with ``max_disparity`` levels, into ``out``, and the config that uses it."""
     import yaml

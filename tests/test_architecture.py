@@ -52,9 +52,10 @@ def test_stages_use_the_library_and_never_each_other():
 
 
 STAGE_RUNS = {"synth": {"run_synth"}, "sfm": {"run_sfm"}, "pretrain": {"run_pretrain"},
-              "stereo": {"run_render", "run_depth", "run_export"}, "joint": {"run_joint"}, "mesh": {"run_mesh"},
+              "stereo": {"run_stereo_render", "run_stereo_depth", "run_export_stereo"}, "joint": {"run_joint"},
+              "mesh": {"run_mesh"},
               "evaluate": {"run_evaluate", "run_ground_truth_check"},
-              "report": {"run_summary", "run_show", "run_report"}}
+              "report": {"run_summary", "run_show_summary", "run_report"}}
 """What each stage exposes to the front (docs/architecture.md, "Stages and the front")."""
 
 
@@ -69,7 +70,7 @@ def test_each_stage_runs_from_its_settings_and_keyword_paths():
             assert name in functions, f"{stage} has no {name}()"
             args = functions[name].args
             assert args.kwonlyargs, f"{stage}.{name}: its paths are keyword arguments"
-            if name not in ("run_summary", "run_show", "run_export"):  # these have no settings section
+            if name not in ("run_summary", "run_show_summary", "run_export_stereo"):  # these have no settings section
                 assert args.args[0].arg == "settings", f"{stage}.{name}: its settings come first"
 
 

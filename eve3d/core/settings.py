@@ -113,13 +113,13 @@ class SfmSettings(Checked):
     """Random seed of the mapper."""
     ransac_trials: int = setting(2000, ge=100)
     """Most RANSAC trials of the two-view check of each matched pair (COLMAP: 10,000), in SfM
-    and in the generator's triangulation. Pairs that do not overlap spend them all: 94 of the
-    100 s of exhaustive matching on 32 views around an object. A pair with 30 % inliers is
-    still verified 99 % of the time (docs/results.md, "SfM")."""
+    and in the generator's triangulation. Pairs that do not overlap spend them all, and around
+    an object most pairs do not: the check is most of exhaustive matching's time. A pair with
+    30 % inliers is still verified 99 % of the time (docs/results.md, "SfM")."""
     threads: int = setting(1, nonzero=True)
     """Threads for extraction, matching and mapping. 1 makes SfM bit-reproducible (pycolmap's
-    multi-threaded matching and mapping are not: the worst camera moved by 0.5 % of the scene
-    radius between runs); -1 uses every core, about twice as fast on 2 cores."""
+    multi-threaded matching and mapping are not: the cameras move between runs); -1 uses every
+    core, faster (docs/results.md, "SfM")."""
 
 
 # --------------------------------------------------------------------------- training

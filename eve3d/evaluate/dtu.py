@@ -188,7 +188,7 @@ def radius_thin(points: np.ndarray, radius: float, rng: np.random.Generator) -> 
 
 def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     """The protocol of the module docstring; distances in mm."""
-    s, scene = inputs.settings, inputs.scene
+    settings, scene = inputs.settings, inputs.scene
     rng = np.random.default_rng(0)
     stl, (obs_mask, bb, res), plane = read_ground_truth(inputs)
     mesh = cull_by_masks(read_mesh(inputs.reconstruction), scene)
@@ -196,8 +196,8 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
         raise Eve3dError(f"{inputs.reconstruction}: nothing of the mesh lies inside the object masks")
     mesh.transform(scene.to_world)
     # the samples before thinning are held only while they are thinned
-    data = radius_thin(dtu_sample_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), s.dtu_density),
-                       s.dtu_density, rng)
+    data = radius_thin(dtu_sample_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), settings.dtu_density),
+                       settings.dtu_density, rng)
     del mesh
     inbound = np.all((data >= bb[:1] - patch) & (data < bb[1:] + patch * 2), axis=1)
     data_in = data[inbound]
@@ -207,14 +207,14 @@ def evaluate_dtu(inputs: EvalInputs, patch: float = 60.0) -> dict:
     in_obs = obs_mask[grid[grid_ok, 0], grid[grid_ok, 1], grid[grid_ok, 2]].astype(bool)
     data_in_obs = data_in[grid_ok][in_obs]
     # Distances at or beyond max_dist are left out of the means, so the search stops there.
-    d2s = nearest_distances(data_in_obs, stl, s.dtu_max_dist)
+    d2s = nearest_distances(data_in_obs, stl, settings.dtu_max_dist)
     stl_above = stl[above_plane(stl, plane)]
     del stl
-    s2d = nearest_distances(stl_above, data_in, s.dtu_max_dist)
-    near_d2s, near_s2d = d2s[d2s < s.dtu_max_dist], s2d[s2d < s.dtu_max_dist]
+    s2d = nearest_distances(stl_above, data_in, settings.dtu_max_dist)
+    near_d2s, near_s2d = d2s[d2s < settings.dtu_max_dist], s2d[s2d < settings.dtu_max_dist]
     if not len(near_d2s) or not len(near_s2d):
         raise Eve3dError(f"{inputs.reconstruction}: no point of the mesh inside the ObsMask lies within "
-                         f"{s.dtu_max_dist:g} mm of {inputs.gt}: is the mesh in the scan's normalised frame?")
+                         f"{settings.dtu_max_dist:g} mm of {inputs.gt}: is the mesh in the scan's normalised frame?")
     maps = write_error_maps(Path(inputs.out).parent, data_in_obs, d2s, stl_above, s2d, ERROR_MAP_MM)
     acc, comp = float(near_d2s.mean()), float(near_s2d.mean())
     return {"accuracy": acc, "completeness": comp, "chamfer": (acc + comp) / 2,

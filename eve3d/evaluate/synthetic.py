@@ -60,28 +60,30 @@ def visible_surface_samples(gt_mesh, cameras, count: int, min_views: int,
 
 def evaluate_synthetic(inputs: EvalInputs) -> dict:
     """The protocol of the module docstring; distances in scene units."""
-    s, cameras = inputs.settings, inputs.scene.cameras
-    if s.min_views > len(cameras):
-        raise Eve3dError(f"evaluate.min_views: {s.min_views} cameras must see a GT point, the scene has {len(cameras)}")
+    settings, cameras = inputs.settings, inputs.scene.cameras
+    if settings.min_views > len(cameras):
+        raise Eve3dError(f"evaluate.min_views: {settings.min_views} cameras must see a GT point, "
+                         f"the scene has {len(cameras)}")
     rng = np.random.default_rng(0)
     gt_mesh, recon_mesh = read_mesh(inputs.gt), read_mesh(inputs.reconstruction)
-    gt, visible_fraction = visible_surface_samples(gt_mesh, cameras, s.samples, s.min_views, rng)
+    gt, visible_fraction = visible_surface_samples(gt_mesh, cameras, settings.samples, settings.min_views, rng)
     if not len(gt):
         raise Eve3dError(f"{inputs.gt}: no part of the GT mesh is seen by the cameras of {inputs.scene.root}; "
                          f"is it in the same frame as the poses?")
     lo, hi = gt.min(axis=0), gt.max(axis=0)
     diagonal = float(np.linalg.norm(hi - lo))
-    if s.tau is not None:
-        tau, rule = float(s.tau), GIVEN_TAU
+    if settings.tau is not None:
+        tau, rule = float(settings.tau), GIVEN_TAU
     else:
-        tau, rule = s.tau_fraction * diagonal, f"{s.tau_fraction:g} x visible-GT bounding-box diagonal ({diagonal:.5g})"
+        tau = settings.tau_fraction * diagonal
+        rule = f"{settings.tau_fraction:g} x visible-GT bounding-box diagonal ({diagonal:.5g})"
     recon, inside_fraction = samples_where(recon_mesh, lambda p: np.all((p >= lo - tau) & (p <= hi + tau), axis=1),
-                                           s.samples, rng)
+                                           settings.samples, rng)
     to_gt, to_recon = mesh_distances(gt_mesh, recon), mesh_distances(recon_mesh, gt)
     metrics = distance_metrics(to_gt, to_recon, tau)
     maps = write_error_maps(Path(inputs.out).parent, recon, to_gt, gt, to_recon, COLOUR_RANGE * tau)
     return {"tau": tau, "tau_rule": rule, **metrics, **maps, "n_recon": int(len(recon)), "n_gt": int(len(gt)),
-            "visible_gt_fraction": visible_fraction, "visible_rule": f"seen by at least {s.min_views} camera(s)",
+            "visible_gt_fraction": visible_fraction, "visible_rule": f"seen by at least {settings.min_views} camera(s)",
             "crop": {"box_min": (lo - tau).tolist(), "box_max": (hi + tau).tolist(),
                      "rule": "visible-GT bounding box grown by tau", "recon_area_fraction_left_out": 1 - inside_fraction}}
 

@@ -159,14 +159,14 @@ FLAT_STD = 0.5 / 255
 texture: a photometric check can neither confirm nor refute a depth there."""
 
 
-def window_moments(a, b, box):
-    """The covariance and both variances of two images over every window that ``box``
-    averages (OpenCV's box filter on NumPy arrays, or a pooling on tensors): the terms of a
-    windowed NCC, cov / √(var_a · var_b)."""
+def window_ncc(a, b, box):
+    """The NCC of two images over every window that ``box`` averages (OpenCV's box filter on
+    NumPy arrays, or a pooling on tensors), cov / √(var_a · var_b), and both variances: a
+    window whose variance is below ``FLAT_STD``² has no texture, and its NCC says nothing."""
     mean_a, mean_b = box(a), box(b)
     var_a = (box(a * a) - mean_a * mean_a).clip(min=0)
     var_b = (box(b * b) - mean_b * mean_b).clip(min=0)
-    return box(a * b) - mean_a * mean_b, var_a, var_b
+    return (box(a * b) - mean_a * mean_b) / (var_a * var_b + 1e-12) ** 0.5, var_a, var_b
 
 
 @torch.no_grad()
@@ -192,10 +192,9 @@ def depth_confirmation(depth: torch.Tensor, ref_grey: torch.Tensor, ref: CameraT
                            zip(nbr_depths, nbr_confident, nbr_greys)], uv).reshape(*shape, 3)
     theirs, confident, grey = sampled.unbind(-1)
     agrees = seen & (confident >= 1 - 1e-6) & ((z.reshape(shape) - theirs).abs() <= tolerance * theirs)
-    cov, var_a, var_b = window_moments(
+    ncc, var_a, var_b = window_ncc(
         ref_grey[..., 0][None], grey,
         lambda x: F.avg_pool2d(x[:, None], window, 1, window // 2, count_include_pad=False)[:, 0])
-    ncc = cov / torch.sqrt(var_a * var_b + 1e-12)
     ncc = torch.where(seen & (var_b > FLAT_STD ** 2), ncc, torch.full_like(ncc, -1.0))
     return agrees, ncc, var_a[0] < FLAT_STD ** 2
 

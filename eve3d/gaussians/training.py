@@ -88,6 +88,12 @@ class Trainer:
         """The Gaussians being trained."""
         return self.state.model
 
+    def start_from(self, points: np.ndarray, colors: np.ndarray | None) -> None:
+        """Train Gaussians at ``points`` (N, 3) from here on, coloured ``colors`` (N, 3) in
+        [0, 1] or grey, of the settings' SH degree and initial thickness; fresh Adam states."""
+        self.state.set_model(GaussianModel.from_points(points, colors, self.settings.sh_degree,
+                                                       thickness=self.settings.init_thickness))
+
     @property
     def generator(self) -> torch.Generator:
         """The run's seeded generator: a loss that draws at random draws from it."""

@@ -35,6 +35,12 @@ class Priors:
     """SHA-256 of the prior files: a checkpoint trained on other priors is not resumed."""
 
 
+def confident(depth: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """A prior's confident pixels, its M^c: a positive depth whose confidence is over one half
+    (a confidence without a depth is none)."""
+    return (confidence > 0.5) & (depth > 0)
+
+
 def resample_prior(depth: np.ndarray, confidence: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Depth and confidence at another size without mixing valid and invalid depths: a
     pixel's depth is the area mean of the *valid* depths under it, and it is valid only
@@ -51,7 +57,7 @@ def resample_prior(depth: np.ndarray, confidence: np.ndarray, width: int, height
     cover = area(valid)
     mean = area(depth * valid) / np.maximum(cover, 1e-6)
     keep = cover >= 0.5
-    conf = area((confidence > 0.5) & (depth > 0)) >= 0.5
+    conf = area(confident(depth, confidence)) >= 0.5
     return np.where(keep, mean, 0).astype(np.float32), (conf & keep).astype(np.float32)
 
 
@@ -86,11 +92,11 @@ def load_priors(folder: Path, cameras: list[Camera], training: list[Camera], dev
                              f"{full.width}×{full.height} (or a scale of it)")
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0)
         depth, conf = resample_prior(depth, conf, cam.width, cam.height)
-        if not ((depth > 0) & (conf > 0.5)).any():
+        if not confident(depth, conf).any():
             blank.append(cam.view_id)
         d = torch.from_numpy(depth)
         depths.append(d)
-        confs.append(torch.from_numpy((conf > 0.5) & (depth > 0)))  # a confidence without a depth is none
+        confs.append(torch.from_numpy(confident(depth, conf)))
         normals.append(depth_to_normal(d, CameraTensors.from_camera(cam), normal_span))
     if len(blank) == len(training):
         raise Eve3dError(f"{folder}: no confident prior depth in any view (every pixel invalid or unconfident)")

@@ -1,6 +1,6 @@
 """What every stereo backend shares: the left–right check, the right image's own disparity
-from a left-image matcher, the local texture measure of the confidence checks, and the onnxruntime
-session of the network backends."""
+from a left-image matcher, the grey level and the local texture measure of the confidence
+checks, and the onnxruntime session of the network backends."""
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -45,10 +45,15 @@ def left_right_consistent(disp_l: np.ndarray, disp_r: np.ndarray, threshold: flo
     return (disp_l > 0) & (x >= 0) & (back > 0) & (np.abs(back - disp_l) <= threshold)
 
 
+def grey(image: np.ndarray) -> np.ndarray:
+    """The grey level (float32) of an RGB image, the mean of its channels; a grey image as it is."""
+    return (image.mean(-1) if image.ndim == 3 else image).astype(np.float32)
+
+
 def local_std(image: np.ndarray, size: int) -> np.ndarray:
     """Grey-level standard deviation over a ``size``×``size`` window (0–255 scale)."""
     import cv2
 
-    grey = (image.mean(-1) if image.ndim == 3 else image).astype(np.float32)
-    mean = cv2.blur(grey, (size, size))
-    return np.sqrt(np.maximum(cv2.blur(grey * grey, (size, size)) - mean * mean, 0))
+    level = grey(image)
+    mean = cv2.blur(level, (size, size))
+    return np.sqrt(np.maximum(cv2.blur(level * level, (size, size)) - mean * mean, 0))

@@ -50,10 +50,10 @@ class OnnxStereo:
                              f"stereo.onnx.size: [{hw[0]}, {hw[1]}] so images are resized to it")
 
     def _tensor(self, image: np.ndarray) -> np.ndarray:
-        s = self.spec
-        x = (image.astype(np.float32) / 255.0 * s.scale - np.float32(s.mean)) / np.float32(s.std)
+        spec = self.spec
+        x = (image.astype(np.float32) / 255.0 * spec.scale - np.float32(spec.mean)) / np.float32(spec.std)
         x = x[None]
-        return np.ascontiguousarray(x.transpose(0, 3, 1, 2) if s.layout == "NCHW" else x, dtype=np.float32)
+        return np.ascontiguousarray(x.transpose(0, 3, 1, 2) if spec.layout == "NCHW" else x, dtype=np.float32)
 
     def _output(self, out: np.ndarray) -> np.ndarray:
         out = np.asarray(out, dtype=np.float32)
@@ -69,17 +69,17 @@ class OnnxStereo:
     def disparity(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         import cv2
 
-        s = self.spec
+        spec = self.spec
         h, w = left.shape[:2]
-        if s.size is not None:
-            th, tw = s.size
+        if spec.size is not None:
+            th, tw = spec.size
 
             def resize(im):
                 return cv2.resize(im, (tw, th), interpolation=cv2.INTER_AREA if tw < w else cv2.INTER_LINEAR)
 
             out = self._run(resize(left), resize(right))
             return cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(w / tw)
-        ph, pw = (max(n, s.min_size) + -max(n, s.min_size) % s.divisor - n for n in (h, w))
+        ph, pw = (max(n, spec.min_size) + -max(n, spec.min_size) % spec.divisor - n for n in (h, w))
 
         def pad(im):
             return np.pad(im, ((0, ph), (0, pw), (0, 0)), mode="edge")

@@ -34,25 +34,25 @@ def _right_matcher(sgbm):
         preFilterCap=sgbm.getPreFilterCap(), uniquenessRatio=0, speckleWindowSize=0, mode=sgbm.getMode())
 
 
-def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
-                   s: SgbmSettings | None = None, min_disparity: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float, settings: SgbmSettings | None = None,
+                   min_disparity: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Disparity of the left image (float32, px; 0 where invalid) and its confidence (float32
     in [0, 1]): the left–right check against ximgproc's right matcher, or the WLS filter's
     confidence map, in both cases gated by texture. Searched from ``min_disparity`` to at
     least ``max_disparity`` (the range rounded up to a multiple of 16 px)."""
     import cv2
 
-    s = s or SgbmSettings()
+    settings = settings or SgbmSettings()
     low = int(np.floor(max(min_disparity, 0)))
     num = int(np.ceil(max(max_disparity - low, 16) / 16.0)) * 16
-    sgbm = _matcher(low, num, s)
+    sgbm = _matcher(low, num, settings)
     right_matcher = _right_matcher(sgbm)
     raw_l, raw_r = sgbm.compute(left, right), right_matcher.compute(right, left)  # 1/16 px; right ≤ 0
-    textured = local_std(left, s.block_size) >= s.min_texture
-    if s.wls:
+    textured = local_std(left, settings.block_size) >= settings.min_texture
+    if settings.wls:
         wls = cv2.ximgproc.createDisparityWLSFilter(sgbm)
-        wls.setLambda(s.wls_lambda)
-        wls.setSigmaColor(s.wls_sigma)
+        wls.setLambda(settings.wls_lambda)
+        wls.setSigmaColor(settings.wls_sigma)
         disp = wls.filter(raw_l, left, disparity_map_right=raw_r).astype(np.float32) / 16.0
         confidence = wls.getConfidenceMap().astype(np.float32) / 255.0
     else:
@@ -61,8 +61,9 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity: float,
             return np.where((raw >= 16 * low) & (raw < 16 * (low + num)), raw / 16.0, 0)
 
         disp = in_range(raw_l.astype(np.float32))
-        confidence = left_right_consistent(disp, in_range(-raw_r.astype(np.float32)), s.lr_threshold)
+        confidence = left_right_consistent(disp, in_range(-raw_r.astype(np.float32)), settings.lr_threshold)
     return np.maximum(disp, 0).astype(np.float32), np.where(textured & (disp > 0), confidence, 0).astype(np.float32)
+
 
 class SgbmStereo:
     """``matcher(left, right, (min, max))`` for :func:`eve3d.stereo.stereo_priors`: the

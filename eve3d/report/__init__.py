@@ -480,7 +480,7 @@ def print_tables(rows: list[dict], view_rows: list[dict]) -> None:
         print(format_table(view_rows, VIEW_COLUMNS))
 
 
-def run_show(*, summary: Path) -> None:
+def run_show_summary(*, summary: Path) -> None:
     """``eve3d summary --show``: the tables of a written ``summary.csv`` (and the views' beside
     it), as the summary printed them, without gathering anything (``make demo`` prints its
     table last this way)."""

@@ -147,9 +147,11 @@ def write_tnt_release(scene: Scene, root: Path, name: str = "Barn", gt_points: i
 
     from eve3d.core.fileio import read_mesh
     from eve3d.core.io.colmap import write_colmap
+    from eve3d.core.io.tnt import GROUND_TRUTH_FILES
     from eve3d.core.surface import sample_surface
 
     folder = root / name
+    files = {key: folder / f"{name}{suffix}" for key, suffix in GROUND_TRUTH_FILES.items()}
     shutil.copytree(scene.root / "images", folder / "images")
     write_colmap(Scene(root=folder, cameras=scene.cameras, points=scene.points, point_colors=scene.point_colors,
                        point_views=scene.point_views), folder / "sparse" / "0")
@@ -161,16 +163,16 @@ def write_tnt_release(scene: Scene, root: Path, name: str = "Barn", gt_points: i
         pose[:3, :3] = rotation.T @ cam.R.T
         pose[:3, 3] = to_official[:3, :3] @ cam.center + to_official[:3, 3]
         poses.append(pose)
-    write_log(folder / f"{name}_COLMAP_SfM.log", poses)
-    np.savetxt(folder / f"{name}_trans.txt", TNT_OFFICIAL)
+    write_log(files["trajectory"], poses)
+    np.savetxt(files["trans"], TNT_OFFICIAL)
     gt = read_mesh(scene.gt_mesh)
     v, tri = np.asarray(gt.vertices), np.asarray(gt.triangles)
     points = sample_surface(v, tri, gt_points, np.random.default_rng(0))
-    o3d.io.write_point_cloud(str(folder / f"{name}.ply"), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)))
+    o3d.io.write_point_cloud(str(files["gt_points"]), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)))
     lo, hi = points.min(0), points.max(0)
     pad = 0.05 * (hi - lo)
     (x0, y0, z0), (x1, y1, z1) = lo - pad, hi + pad
-    write_crop(folder / f"{name}.json", [(x0, y0), (x1, y0), (x1, y1), (x0, y1)], z0, z1)
+    write_crop(files["crop"], [(x0, y0), (x1, y0), (x1, y1), (x0, y1)], z0, z1)
     return folder
 
 

@@ -95,7 +95,7 @@ def training_threads():
 def after_training(wildcards):
     """Priority of a method's mesh and score: a trained method's come first, since they wait
     on the longest jobs, while `oracle`'s and `stereo-tsdf`'s could have run at any time
-    (the demo: 9 s less after eve3d's training, where those four jobs went first)."""
+    (docs/results.md, "Figures behind the code's choices")."""
     return 1 if wildcards.method in TRAINED else 0
 
 
@@ -256,12 +256,18 @@ def ground_truth_inputs(wildcards):
     return inputs
 
 
-def ground_truth_args(wildcards, input):
-    """The protocol and its ground-truth flags (a generated GT mesh lies inside its dataset folder)."""
+def ground_truth_file(wildcards, key):
+    """The file a protocol's ground-truth config key names: for `gt_mesh` the scene's GT mesh
+    (a generated one lies inside its dataset folder), else the scene's own value."""
+    return gt_mesh(wildcards) if key == "gt_mesh" else scene_value(scene_config(wildcards.scene), key)
+
+
+def ground_truth_args(wildcards):
+    """The protocol and its ground-truth flags."""
     protocol = PROTOCOL[wildcards.scene]
     args = [f"--protocol {protocol.name}"]
     for name, key in protocol.config_inputs.items():
-        args.append(f"{flag(name)} {gt_mesh(wildcards) if key == 'gt_mesh' else getattr(input, name)}")
+        args.append(f"{flag(name)} {ground_truth_file(wildcards, key)}")
     return " ".join(args)
 
 
@@ -300,7 +306,7 @@ def evaluate_settings(scene):
 def evaluate_args(wildcards, input):
     """The protocol, its inputs, and the job config: the `evaluate` section with the scene's
     own keys over it, and `mesh` (the depth maps are scored where the mesh fused them)."""
-    args = [ground_truth_args(wildcards, input), f"--{PROTOCOL[wildcards.scene].scores} {input.reconstruction}"]
+    args = [ground_truth_args(wildcards), f"--{PROTOCOL[wildcards.scene].scores} {input.reconstruction}"]
     if scores_depth(wildcards.scene):
         args.append(f"--depth {input.depth} --exact-depth {input.exact_depth}")
     return " ".join(args + ["--config", job_config("mesh", evaluate=evaluate_settings(wildcards.scene))])
@@ -318,7 +324,6 @@ def report_args(wildcards):
         args.append(f"--dataset {shlex.quote(f'{s}={posed_dataset(scene)}')}")
         key = PROTOCOL[s].config_inputs.get("gt")
         if key:
-            gt = gt_mesh(scene) if key == "gt_mesh" else scene_value(scene_config(s), key)
-            args.append(f"--gt {shlex.quote(f'{s}={gt}')}")
+            args.append(f"--gt {shlex.quote(f'{s}={ground_truth_file(scene, key)}')}")
     benchmark = {"benchmark": config["benchmark"]} if config.get("benchmark") else {}
     return " ".join(args + ["--config", job_config("stereo", **benchmark)])

@@ -301,9 +301,31 @@ def write_colmap(scene: Scene, out_dir: Path, binary: bool = True) -> None:
     (rec.write_binary if binary else rec.write_text)(str(out_dir))
 
 
+def extraction_options(settings: SfmSettings):
+    """SIFT's options: images scaled to at most ``settings.max_image_size``, on
+    ``settings.threads`` threads."""
+    pycolmap = import_pycolmap()
+
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = settings.max_image_size
+    extraction.num_threads = settings.threads
+    return extraction
+
+
+def mapping_options(settings: SfmSettings):
+    """The mapper's and the triangulator's options: ``settings.threads`` threads, seeded."""
+    pycolmap = import_pycolmap()
+
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = settings.threads
+    options.random_seed = settings.seed
+    return options
+
+
 def match_features(db_path: Path, settings: SfmSettings) -> None:
-    """Match the features in the database ``db_path`` (``s.matcher``) and verify each pair's
-    two-view geometry (at most ``s.ransac_trials`` RANSAC trials), on ``s.threads`` threads."""
+    """Match the features in the database ``db_path`` (``settings.matcher``) and verify each
+    pair's two-view geometry (at most ``settings.ransac_trials`` RANSAC trials), on
+    ``settings.threads`` threads."""
     pycolmap = import_pycolmap()
 
     matching = pycolmap.FeatureMatchingOptions()
@@ -314,28 +336,26 @@ def match_features(db_path: Path, settings: SfmSettings) -> None:
     match(str(db_path), matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
 
 
-def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, s: SfmSettings | None = None
+def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, settings: SfmSettings | None = None
                             ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """Sparse points as SfM gives them to a user whose poses are known (DTU, a generated
     scene): SIFT features of the photos in ``image_dir`` (named as the cameras), matched
-    (``s.matcher``) and triangulated by COLMAP's point triangulator with the cameras held
-    fixed, outliers and all. Returns the points (N, 3), their colours (N, 3) uint8 and each
+    (``settings.matcher``) and triangulated by COLMAP's point triangulator with the cameras
+    held fixed, outliers and all. Returns the points (N, 3), their colours (N, 3) uint8 and each
     point's views (indices into ``cameras``). ``work`` is scratch space (made, then removed)."""
     pycolmap = import_pycolmap()
 
-    s = s or SfmSettings()
+    settings = settings or SfmSettings()
     work.mkdir(parents=True)
     db_path = work / "database.db"
     names = [c.name for c in cameras]
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.max_image_size = s.max_image_size
-    extraction.num_threads = s.threads
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "PINHOLE"
-    pycolmap.set_random_seed(s.seed)
+    pycolmap.set_random_seed(settings.seed)
     pycolmap.extract_features(str(db_path), str(image_dir), image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
-                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-    match_features(db_path, s)
+                              reader_options=reader, extraction_options=extraction_options(settings),
+                              device=pycolmap.Device.cpu)
+    match_features(db_path, settings)
     # the database's own ids, with our intrinsics and poses: the triangulator pairs them by id
     index = {name: i for i, name in enumerate(names)}
     known = pycolmap.Reconstruction()
@@ -353,10 +373,8 @@ def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, 
                 pycolmap.Rigid3d(np.hstack([cam.R, cam.t[:, None]])))
     finally:
         db.close()
-    options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = s.threads
-    options.random_seed = s.seed
-    result = pycolmap.triangulate_points(known, str(db_path), str(image_dir), str(work / "sparse"), options=options)
+    result = pycolmap.triangulate_points(known, str(db_path), str(image_dir), str(work / "sparse"),
+                                         options=mapping_options(settings))
     shutil.rmtree(work, ignore_errors=True)
     by_id = {image_id: index[image.name] for image_id, image in result.images.items()}
     points = sorted(result.points3D.items())

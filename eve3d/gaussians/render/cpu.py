@@ -56,7 +56,7 @@ def extension():
 
     # torch builds with ninja; the pip-installed one sits beside this interpreter.
     os.environ["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
-    print("eve3d: loading the C++ rasteriser (compiled once, about 15 s on 2 cores, then cached)", file=sys.stderr)
+    print("eve3d: loading the C++ rasteriser (compiled once for this CPU and checkout, then cached)", file=sys.stderr)
     native = ["-march=native"] if platform.machine() in ("x86_64", "AMD64") else []
     load(name=f"eve3d_rasterize_{build_tag()}", sources=[str(p) for p in SOURCES], is_python_module=False,
          extra_cflags=["-O3", *native, "-fno-trapping-math", "-fopenmp"], extra_ldflags=["-fopenmp"], verbose=False)

@@ -24,7 +24,8 @@ MEMORY_PROTOCOLS = ("synthetic", "tnt", "dtu")
 MEMORY_IMAGE_DIVISOR = 4
 """The memory mode generates its photos at 1/4 of the size its depth maps are made and fused
 at (the fusion reads each photo at the map's size): ray casting and shading 300 photos of
-1920×1080 takes about 13 minutes, longer than what it measures."""
+1920×1080 takes longer than what it measures (docs/results.md, "Figures behind the code's
+choices")."""
 DTU_VIEWS = 49
 """Views of the memory mode's DTU stand-in (a scan has 49)."""
 

@@ -101,9 +101,6 @@ def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
     return lines
 
 
-# --- evaluation ----------------------------------------------------------------------------
-
-
 def run_bench_stereo(priors: list[Path], scene: Path | None = None, as_json: bool = False) -> None:
     """``eve3d bench stereo``: the Motorcycle pair, then each prior folder scored against the
     oracle beside it, or (a real capture, no oracle) its views' agreement over ``scene``."""

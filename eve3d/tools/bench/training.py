@@ -281,8 +281,8 @@ def _time_training_in_child(args: tuple) -> StageTiming:
 def default_start(config: dict) -> int:
     """The first step at which every term of the joint stage is on (dn_from, mv_from,
     prior_from, joint_from): cpu preset 500."""
-    s = stage_settings_for("pgsr", config, 1)
-    return max(s.dn_from, s.mv_from, s.prior_from, s.joint_from)
+    settings = stage_settings_for("pgsr", config, 1)
+    return max(settings.dn_from, settings.mv_from, settings.prior_from, settings.joint_from)
 
 
 def bench_training(stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, warmup: int = 3, gaussians: int = 35_000,
@@ -311,16 +311,17 @@ def bench_training(stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, war
     synthetic = from_mapping(SyntheticSettings, config.get("synthetic") or {}, "synthetic")
     start = default_start(config) if start is None else start
     settings = {stage: stage_settings_for(stage, config, gaussians) for stage in stages}
-    for stage, s in settings.items():
-        if start + warmup + steps > s.iterations:
-            raise Eve3dError(f"{stage}: steps {start}..{start + warmup + steps} run past its {s.iterations} iterations")
+    for stage, stage_settings in settings.items():
+        if start + warmup + steps > stage_settings.iterations:
+            raise Eve3dError(f"{stage}: steps {start}..{start + warmup + steps} run past its "
+                             f"{stage_settings.iterations} iterations")
     ctx = multiprocessing.get_context("spawn")
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         scene_dir = generate("object", Path(tmp) / "object", views=synthetic.views, width=synthetic.width,
                              height=synthetic.height, seed=synthetic.seed, surface_samples=gaussians)
         priors = None
-        if any(stage != "pretrain" and uses_priors(asdict(s)) for stage, s in settings.items()):
+        if any(stage != "pretrain" and uses_priors(asdict(stage_settings)) for stage, stage_settings in settings.items()):
             priors = Path(tmp) / "priors"
             priors_from_mesh(load_scene(scene_dir), priors, preview=False)
         rows = []
