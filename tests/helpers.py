@@ -38,8 +38,8 @@ WORKFLOW_CORES = "-c1" if "PYTEST_XDIST_WORKER" in os.environ else "-c2"
 """The cores a workflow test's real run gets: under ``make test``'s workers (three on two
 cores, each torch on one thread, tests/conftest.py) a worker's share, both cores when the test
 runs alone. At ``-c2`` there, each run's two-thread training jobs competed with the other
-workers and the suite took 1.14× the wall and 1.19× the CPU time (docs/development.md, "Tests");
-concurrent jobs stay tested by the Slurm run (``--jobs 4``)."""
+workers for the cores (docs/development.md, "Tests"); jobs side by side stay tested by the
+Slurm run (``--jobs 4``)."""
 
 
 def snakemake(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:

@@ -83,10 +83,10 @@ def tnt_scene(root: Path, name: str) -> dict:
 
     if find_colmap_model(folder) is None:
         raise _expected(folder / "sparse" / "0", "the scene's COLMAP model (cameras, images, points3D)", root)
-    from eve3d.core.io.tnt import GROUND_TRUTH_FILES
+    from eve3d.core.io.tnt import ground_truth_files
 
-    for suffix in GROUND_TRUTH_FILES.values():
-        _need(folder / f"{name}{suffix}", f"the official T&T evaluation file of {name}", root, named=True)
+    for path in ground_truth_files(folder, name).values():
+        _need(path, f"the official T&T evaluation file of {name}", root, named=True)
     return {"path": str(folder)}
 
 

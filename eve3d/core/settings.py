@@ -115,11 +115,11 @@ class SfmSettings(Checked):
     """Most RANSAC trials of the two-view check of each matched pair (COLMAP: 10,000), in SfM
     and in the generator's triangulation. Pairs that do not overlap spend them all, and around
     an object most pairs do not: the check is most of exhaustive matching's time. A pair with
-    30 % inliers is still verified 99 % of the time (docs/results.md, "SfM")."""
+    30 % inliers is still verified 99 % of the time (docs/results.md, "Training", on SfM)."""
     threads: int = setting(1, nonzero=True)
     """Threads for extraction, matching and mapping. 1 makes SfM bit-reproducible (pycolmap's
     multi-threaded matching and mapping are not: the cameras move between runs); -1 uses every
-    core, faster (docs/results.md, "SfM")."""
+    core, faster (docs/results.md, "Training", on SfM)."""
 
 
 # --------------------------------------------------------------------------- training

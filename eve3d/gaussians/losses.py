@@ -162,7 +162,8 @@ texture: a photometric check can neither confirm nor refute a depth there."""
 def window_ncc(a, b, box):
     """The NCC of two images over every window that ``box`` averages (OpenCV's box filter on
     NumPy arrays, or a pooling on tensors), cov / √(var_a · var_b), and both variances: a
-    window whose variance is below ``FLAT_STD``² has no texture, and its NCC says nothing."""
+    window whose variance is below ``FLAT_STD``² (grey levels in [0, 1]; (255·``FLAT_STD``)²
+    in 0–255) has no texture, and its NCC says nothing."""
     mean_a, mean_b = box(a), box(b)
     var_a = (box(a * a) - mean_a * mean_a).clip(min=0)
     var_b = (box(b * b) - mean_b * mean_b).clip(min=0)

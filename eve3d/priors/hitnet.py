@@ -20,7 +20,7 @@ import numpy as np
 from eve3d.core.errors import Eve3dError
 from eve3d.core.photos import warn
 from eve3d.core.settings import HitnetSettings, StereoSettings
-from eve3d.priors.matching import left_right_consistent, mirrored, onnx_session
+from eve3d.priors.matching import grey, left_right_consistent, mirrored, onnx_session
 
 INPUT, OUTPUT = "input", "reference_output_disparity"
 WHERE = ("HITNet's ETH3D exports (hitnet_eth3d_HxW.onnx) are the release assets v0.1-hitnet of the stereodemo "
@@ -62,13 +62,10 @@ class HitnetStereo:
         h, w = left.shape[:2]
         th, tw = self.size
 
-        def grey(im):
-            return (im.mean(-1) if im.ndim == 3 else im).astype(np.float32) / 255
+        def resize(im):  # the grey levels in [0, 1], at the model's size
+            return cv2.resize(grey(im) / 255, (tw, th), interpolation=cv2.INTER_AREA if tw < w else cv2.INTER_LINEAR)
 
-        def resize(im):
-            return cv2.resize(im, (tw, th), interpolation=cv2.INTER_AREA if tw < w else cv2.INTER_LINEAR)
-
-        pair = np.stack([resize(grey(left)), resize(grey(right))])[None]
+        pair = np.stack([resize(left), resize(right)])[None]
         out = np.asarray(self.session.run([OUTPUT], {INPUT: np.ascontiguousarray(pair)})[0], np.float32)
         return cv2.resize(out.reshape(th, tw), (w, h), interpolation=cv2.INTER_LINEAR) * np.float32(w / tw)
 

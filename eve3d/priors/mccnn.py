@@ -19,7 +19,7 @@ import numpy as np
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.settings import MccnnSettings, StereoSettings
-from eve3d.priors.matching import left_right_consistent, local_std
+from eve3d.priors.matching import grey, left_right_consistent, local_std
 
 PATCH = 11
 """MC-CNN fast's receptive field (five 3×3 convolutions without padding), px."""
@@ -75,9 +75,9 @@ class MccnnStereo:
         to zero mean and unit deviation as in training, and reflected at its border."""
         import torch
 
-        grey = (image.mean(-1) if image.ndim == 3 else image).astype(np.float32)
-        grey = (grey - grey.mean()) / max(float(grey.std()), 1e-6)
-        x = torch.nn.functional.pad(torch.from_numpy(grey)[None, None], (PATCH // 2,) * 4, mode="reflect")
+        level = grey(image)
+        level = (level - level.mean()) / max(float(level.std()), 1e-6)
+        x = torch.nn.functional.pad(torch.from_numpy(level)[None, None], (PATCH // 2,) * 4, mode="reflect")
         with torch.no_grad():
             f = self.net(x)[0]
         return torch.nn.functional.normalize(f, dim=0)

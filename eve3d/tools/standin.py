@@ -147,11 +147,11 @@ def write_tnt_release(scene: Scene, root: Path, name: str = "Barn", gt_points: i
 
     from eve3d.core.fileio import read_mesh
     from eve3d.core.io.colmap import write_colmap
-    from eve3d.core.io.tnt import GROUND_TRUTH_FILES
+    from eve3d.core.io.tnt import ground_truth_files
     from eve3d.core.surface import sample_surface
 
     folder = root / name
-    files = {key: folder / f"{name}{suffix}" for key, suffix in GROUND_TRUTH_FILES.items()}
+    files = ground_truth_files(folder, name)
     shutil.copytree(scene.root / "images", folder / "images")
     write_colmap(Scene(root=folder, cameras=scene.cameras, points=scene.points, point_colors=scene.point_colors,
                        point_views=scene.point_views), folder / "sparse" / "0")

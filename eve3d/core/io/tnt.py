@@ -47,9 +47,14 @@ GROUND_TRUTH_FILES = {"gt_points": ".ply", "crop": ".json", "trans": "_trans.txt
 (``Scene.extras`` keys)."""
 
 
+def ground_truth_files(root: Path, name: str) -> dict[str, Path]:
+    """The official evaluation files of the T&T scene ``name`` in ``root``, by key."""
+    return {key: root / f"{name}{suffix}" for key, suffix in GROUND_TRUTH_FILES.items()}
+
+
 def read_tnt(root: Path, check_images: bool = True) -> Scene:
     name = tnt_name(root)
-    files = {k: root / f"{name}{suffix}" for k, suffix in GROUND_TRUTH_FILES.items()}
+    files = ground_truth_files(root, name)
     missing = [str(p) for p in files.values() if not p.is_file()]
     if missing:
         raise Eve3dError(f"{root}: Tanks and Temples ground-truth files missing: {', '.join(missing)}")

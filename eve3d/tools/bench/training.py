@@ -321,7 +321,8 @@ def bench_training(stages: Sequence[str] = TRAINING_STAGES, steps: int = 30, war
         scene_dir = generate("object", Path(tmp) / "object", views=synthetic.views, width=synthetic.width,
                              height=synthetic.height, seed=synthetic.seed, surface_samples=gaussians)
         priors = None
-        if any(stage != "pretrain" and uses_priors(asdict(stage_settings)) for stage, stage_settings in settings.items()):
+        if any(stage != "pretrain" and uses_priors(asdict(stage_settings))
+               for stage, stage_settings in settings.items()):
             priors = Path(tmp) / "priors"
             priors_from_mesh(load_scene(scene_dir), priors, preview=False)
         rows = []

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from eve3d.core.layout import Layout
+from eve3d.core.layout import PRETRAIN, Layout
 from eve3d.core.maps import load_maps, save_maps
 from eve3d.priors.oracle import priors_from_mesh
 from eve3d.tools.bench.methods import format_methods_report, format_real_report, methods_report, real_report
@@ -66,8 +66,6 @@ def test_real_report_reads_photos_times_held_out_views_priors_and_meshes(tiny_da
     a mesh's extent against the sparse points' box."""
     import open3d as o3d
 
-    from eve3d.core.layout import PRETRAIN
-
     layout = Layout(tmp_path / "results")
     config = {"results": str(layout.root), "stereo": {"backend": "oracle"}, "methods": ["eve3d"],
               "scenes": {"cap": {"path": str(tiny_dataset)}}}
@@ -87,7 +85,8 @@ def test_real_report_reads_photos_times_held_out_views_priors_and_meshes(tiny_da
     assert row["priors"]["median_disagreement"] < 0.005 and row["priors"]["compared"] > 0
     mesh = row["meshes"]["eve3d"]
     assert mesh["triangles"] == 12 and mesh["extent"] == [1.0, 2.0, 0.5]
-    sparse = np.asarray(mesh["sparse_extent"])
-    assert mesh["extent_ratio"] == pytest.approx(np.max([1.0, 2.0, 0.5] / sparse), rel=1e-3)
+    lo, hi = tiny_scene.sparse_box()  # the sparse points' 5–95 % box
+    assert mesh["sparse_extent"] == pytest.approx(hi - lo, abs=1e-4)
+    assert mesh["extent_ratio"] == pytest.approx(np.max([1.0, 2.0, 0.5] / (hi - lo)))
     table = format_real_report(real_report(config))
     assert f"cap: {row['registered']} of {row['photos']} photos registered" in table and "22.50" in table
