@@ -58,8 +58,9 @@ def _cmd_sfm(a: argparse.Namespace) -> None:
 
 
 def _cmd_stereo_render(a: argparse.Namespace) -> None:
-    from eve3d.core.settings import PretrainSettings, RenderSettings, StereoSettings
+    from eve3d.core.settings import PretrainSettings, RenderSettings
     from eve3d.core.settings_fields import pick
+    from eve3d.core.settings_stereo import StereoSettings
     from eve3d.stereo import run_stereo_render
 
     config = _config(a)
@@ -69,7 +70,7 @@ def _cmd_stereo_render(a: argparse.Namespace) -> None:
 
 
 def _cmd_stereo_depth(a: argparse.Namespace) -> None:
-    from eve3d.core.settings import StereoSettings
+    from eve3d.core.settings_stereo import StereoSettings
     from eve3d.stereo import run_stereo_depth
 
     run_stereo_depth(_settings(a, StereoSettings, "stereo"), scene=a.scene, out=a.out, stereo=a.stereo,
@@ -137,7 +138,7 @@ def _cmd_summary(a: argparse.Namespace) -> None:
 
 
 def _cmd_report(a: argparse.Namespace) -> None:
-    from eve3d.core.settings import StereoSettings
+    from eve3d.core.settings_stereo import StereoSettings
     from eve3d.report import run_report
 
     config = _config(a)
@@ -345,8 +346,8 @@ def _add_data_parsers(sub) -> None:
 
 
 def _add_stereo_parsers(sub) -> None:
-    from eve3d.core.settings import (PRIOR_BACKENDS, BaselineSettings, MatchCheck, RenderSettings, SgbmSettings,
-                                     StereoSettings)
+    from eve3d.core.settings import RenderSettings
+    from eve3d.core.settings_stereo import PRIOR_BACKENDS, BaselineSettings, MatchCheck, SgbmSettings, StereoSettings
 
     s = _stage(sub, "stereo-render", _cmd_stereo_render,
                "right views of virtual stereo pairs, rendered by the pretrained model",

@@ -24,8 +24,9 @@ from eve3d.core.layout import TONE_FILE  # written by the pretrain beside its PL
 from eve3d.core.maps import save_maps
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Scene
-from eve3d.core.settings import PRIOR_BACKENDS, BaselineSettings, MatchCheck, RenderSettings, StereoSettings
+from eve3d.core.settings import RenderSettings
 from eve3d.core.settings_fields import pick
+from eve3d.core.settings_stereo import PRIOR_BACKENDS, BaselineSettings, MatchCheck, StereoSettings
 from eve3d.core.timing import phase
 from eve3d.gaussians.neighbours import select_neighbours
 from eve3d.priors.matching import grey
@@ -204,28 +205,9 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
     from eve3d.gaussians.geometry import depth_to_normal
     from eve3d.gaussians.render.projection import CameraTensors
 
-    pairs_path = stereo_dir / PAIRS_FILE
-    if not pairs_path.exists():
-        raise Eve3dError(f"{pairs_path}: missing; run `eve3d stereo-render` first")
-    pairs = json.loads(pairs_path.read_text())
+    views, tone, cameras = read_pairs(stereo_dir, scene)
     check = check or MatchCheck()
     neighbours = select_neighbours(scene, check.mv_neighbours)
-    tone = np.asarray(pairs.get("tone_curve", range(256)))  # the pretrain's, which the right views have
-    if tone.shape != (256,):
-        raise Eve3dError(f"{pairs_path}: tone_curve must list 256 grey levels, got shape {tone.shape}")
-    tone = tone.astype(np.uint8)
-    views = pairs.get("views", {})
-    for cam in scene.cameras:
-        if cam.view_id not in views:
-            raise Eve3dError(f"{pairs_path}: no right view for {cam.view_id}")
-        if not PAIR_KEYS <= views[cam.view_id].keys():
-            raise Eve3dError(f"{pairs_path}: view {cam.view_id} lacks "
-                             f"{', '.join(sorted(PAIR_KEYS - views[cam.view_id].keys()))}"
-                             " (written by an older eve3d); run `eve3d stereo-render` again")
-    # every view at the size its right view was rendered at
-    # (no scale: written before priors were matched at the model's size, i.e. at the dataset's)
-    scales = [float(views[c.view_id].get("scale", 1.0)) for c in scene.cameras]
-    cameras = [c.scaled(f) if f != 1 else c for c, f in zip(scene.cameras, scales)]
     # neighbours are mostly the views around: a few decoded photos serve several views
     photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: tone[read_view(cameras[j])])
     with atomic_dir(out_dir) as tmp:
@@ -260,6 +242,32 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
 
 
 PAIR_KEYS = {"baseline", "min_disparity", "max_disparity", "margin"}
+
+
+def read_pairs(stereo_dir: Path, scene: Scene) -> tuple[dict[str, dict], np.ndarray, list[Camera]]:
+    """``stereo-render``'s ``pairs.json`` in ``stereo_dir``, checked against ``scene``: each
+    view's pair (``PAIR_KEYS``), the tone curve its right views were rendered with (256 grey
+    levels), and the scene's cameras at the size of their pairs."""
+    pairs_path = stereo_dir / PAIRS_FILE
+    if not pairs_path.exists():
+        raise Eve3dError(f"{pairs_path}: missing; run `eve3d stereo-render` first")
+    pairs = json.loads(pairs_path.read_text())
+    tone = np.asarray(pairs.get("tone_curve", range(256)))  # the pretrain's, which the right views have
+    if tone.shape != (256,):
+        raise Eve3dError(f"{pairs_path}: tone_curve must list 256 grey levels, got shape {tone.shape}")
+    views = pairs.get("views", {})
+    for cam in scene.cameras:
+        if cam.view_id not in views:
+            raise Eve3dError(f"{pairs_path}: no right view for {cam.view_id}")
+        if not PAIR_KEYS <= views[cam.view_id].keys():
+            raise Eve3dError(f"{pairs_path}: view {cam.view_id} lacks "
+                             f"{', '.join(sorted(PAIR_KEYS - views[cam.view_id].keys()))}"
+                             " (written by an older eve3d); run `eve3d stereo-render` again")
+    # every view at the size its right view was rendered at
+    # (no scale: written before priors were matched at the model's size, i.e. at the dataset's)
+    scales = [float(views[c.view_id].get("scale", 1.0)) for c in scene.cameras]
+    cameras = [c.scaled(f) if f != 1 else c for c, f in zip(scene.cameras, scales)]
+    return views, tone.astype(np.uint8), cameras
 ALPHA_DIR = "alpha"
 """The pretrained model's alpha in each left view (the photo's), 0–255 PNG at the pair's size."""
 

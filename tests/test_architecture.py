@@ -1,6 +1,6 @@
 """The import rule of docs/architecture.md: stages use the library, never each other; the
 library never imports a stage, the front (``cli``, ``config``) or the tools; the core imports
-only itself."""
+only itself. And the house's size limits: functions, classes and modules."""
 import ast
 from pathlib import Path
 
@@ -84,3 +84,23 @@ def test_the_cli_calls_a_stage_only_through_its_run_functions():
             stage = node.module.split(".")[1]
             wrong = {a.name for a in node.names} - STAGE_RUNS[stage]
             assert all(name.isupper() for name in wrong), f"cli.py imports {sorted(wrong)} from {node.module}"
+
+
+LIMITS = {"function": 60, "class": 120, "module": 600}
+"""The house's size limits, in lines (docs/architecture.md): a definition longer than these
+holds more than one concept and is split where they divide."""
+
+
+def test_no_definition_outgrows_the_house_limits():
+    over = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        source = path.read_text()
+        name = str(path.relative_to(PACKAGE))
+        if len(source.splitlines()) > LIMITS["module"]:
+            over.append(f"{name}: {len(source.splitlines())} lines")
+        for node in ast.walk(ast.parse(source)):
+            kind = ("function" if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+                    else "class" if isinstance(node, ast.ClassDef) else None)
+            if kind and node.end_lineno - node.lineno + 1 > LIMITS[kind]:
+                over.append(f"{name}: {kind} {node.name}, {node.end_lineno - node.lineno + 1} lines")
+    assert not over, f"over the limits {LIMITS}: {over}"

@@ -4,7 +4,8 @@ import dataclasses
 import pytest
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import BaselineSettings, JointSettings, MeshSettings, PretrainSettings
+from eve3d.core.settings import JointSettings, MeshSettings, PretrainSettings
+from eve3d.core.settings_stereo import BaselineSettings
 
 
 def test_every_stage_reads_settings_by_one_route(tmp_path):

@@ -5,8 +5,9 @@ import pytest
 import yaml
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import SECTIONS, StereoSettings
+from eve3d.core.settings import SECTIONS
 from eve3d.core.settings_fields import from_mapping
+from eve3d.core.settings_stereo import StereoSettings
 from tests.helpers import REPO
 
 
@@ -15,7 +16,7 @@ def test_defaults_live_once_in_the_settings():
     training_jobs: no settings class reads them), and a resolved
     config carries every section whole, with the settings classes' defaults."""
     from eve3d.config import resolve_config
-    from eve3d.core.settings import SGM_MODES, SgbmSettings
+    from eve3d.core.settings_stereo import SGM_MODES, SgbmSettings
 
     schema = yaml.safe_load((REPO / "workflow/schemas/config.schema.yaml").read_text())
 

@@ -7,7 +7,7 @@ import pytest
 from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps
 from eve3d.core.scene import Camera, Scene
-from eve3d.core.settings import BaselineSettings, MatchCheck
+from eve3d.core.settings_stereo import BaselineSettings, MatchCheck
 from tests.helpers import dim, sgbm_priors, shifted_pair, stereo_scene
 from eve3d.core.photos import equalizing_curve
 from eve3d.priors.matching import local_std

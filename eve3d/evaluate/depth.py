@@ -13,7 +13,8 @@ import numpy as np
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import depth_at, fusable, load_maps, map_camera, same_aspect
-from eve3d.core.settings import MeshSettings, StereoSettings
+from eve3d.core.settings import MeshSettings
+from eve3d.core.settings_stereo import StereoSettings
 
 WEAK_TEXTURE = 2.0
 """Grey levels (0–255): a pixel whose photo varies less than this (standard deviation over the

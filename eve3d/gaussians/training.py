@@ -69,6 +69,16 @@ def backward(loss: torch.Tensor) -> None:
 class NonFiniteLoss(Eve3dError):
     """A loss term became NaN or infinite."""
 
+    @classmethod
+    def at(cls, step: int, terms: dict[str, torch.Tensor], section: str, name: str,
+           checkpoint: Checkpoint) -> NonFiniteLoss:
+        """The error of a training run named ``name`` (its settings' ``section``) whose loss
+        ``terms`` were not finite at ``step``: which terms, and the checkpoint that is kept."""
+        bad = [k for k, v in terms.items() if not torch.isfinite(v)]
+        stage = name if name == section else f"{section} ({name})"  # joint (pgsr)
+        return cls(f"{stage}: loss term {', '.join(bad) or 'total'} is not finite at iteration {step}; "
+                   f"the last good checkpoint is kept in {checkpoint.path} (step {checkpoint.saved_step()})")
+
 
 class Trainer:
     """Optimises the Gaussians of its :class:`TrainState` on a scene's views; see the module
@@ -152,13 +162,8 @@ class Trainer:
             terms = loss_terms(step, view, out)
             loss = sum(terms.values())
             if not torch.isfinite(loss):
-                bad = [k for k, v in terms.items() if not torch.isfinite(v)]
-                section = self.settings.SECTION
-                stage = self.name if self.name == section else f"{section} ({self.name})"  # joint (pgsr)
                 progress.close()  # the error starts on a line of its own, not after the bar
-                raise NonFiniteLoss(
-                    f"{stage}: loss term {', '.join(bad) or 'total'} is not finite at iteration {step}; "
-                    f"the last good checkpoint is kept in {self.checkpoint.path} (step {self.checkpoint.saved_step()})")
+                raise NonFiniteLoss.at(step, terms, self.settings.SECTION, self.name, self.checkpoint)
             backward(loss)
             st.optimizer_step()
             st.step = step + 1

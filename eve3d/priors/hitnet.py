@@ -19,7 +19,7 @@ import numpy as np
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.photos import warn
-from eve3d.core.settings import HitnetSettings, StereoSettings
+from eve3d.core.settings_stereo import HitnetSettings, StereoSettings
 from eve3d.priors.matching import grey, left_right_consistent, mirrored, onnx_session
 
 INPUT, OUTPUT = "input", "reference_output_disparity"
@@ -90,5 +90,5 @@ class HitnetStereo:
 
 
 def matcher(settings: StereoSettings) -> HitnetStereo:
-    """The ``hitnet`` row of :data:`eve3d.core.settings.PRIOR_BACKENDS`."""
+    """The ``hitnet`` row of :data:`eve3d.core.settings_stereo.PRIOR_BACKENDS`."""
     return HitnetStereo(settings.hitnet)

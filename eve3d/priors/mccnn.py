@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import MccnnSettings, StereoSettings
+from eve3d.core.settings_stereo import MccnnSettings, StereoSettings
 from eve3d.priors.matching import grey, left_right_consistent, local_std
 
 PATCH = 11
@@ -114,7 +114,7 @@ class MccnnStereo:
 
 
 def matcher(settings: StereoSettings) -> MccnnStereo:
-    """The ``mccnn`` row of :data:`eve3d.core.settings.PRIOR_BACKENDS`: ``sgbm``'s texture gate."""
+    """The ``mccnn`` row of :data:`eve3d.core.settings_stereo.PRIOR_BACKENDS`: ``sgbm``'s texture gate."""
     return MccnnStereo(settings.mccnn, settings.min_texture, settings.block_size)
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import OnnxSpec, StereoSettings
+from eve3d.core.settings_stereo import OnnxSpec, StereoSettings
 from eve3d.priors.matching import left_right_consistent, mirrored, onnx_session
 
 
@@ -106,7 +106,7 @@ class OnnxStereo:
 
 
 def matcher(settings: StereoSettings) -> OnnxStereo:
-    """The ``onnx`` row of :data:`eve3d.core.settings.PRIOR_BACKENDS`."""
+    """The ``onnx`` row of :data:`eve3d.core.settings_stereo.PRIOR_BACKENDS`."""
     if not settings.onnx.model:
         raise Eve3dError("--backend onnx needs the model spec: stereo.onnx in --config, or --set stereo.onnx.model=FILE")
     return OnnxStereo(settings.onnx)

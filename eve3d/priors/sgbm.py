@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from eve3d.core.settings import SGM_MODES, SgbmSettings, StereoSettings
 from eve3d.core.settings_fields import pick
+from eve3d.core.settings_stereo import SGM_MODES, SgbmSettings, StereoSettings
 from eve3d.priors.matching import left_right_consistent, local_std
 
 
@@ -78,5 +78,5 @@ class SgbmStereo:
 
 
 def matcher(settings: StereoSettings) -> SgbmStereo:
-    """The ``sgbm`` row of :data:`eve3d.core.settings.PRIOR_BACKENDS`."""
+    """The ``sgbm`` row of :data:`eve3d.core.settings_stereo.PRIOR_BACKENDS`."""
     return SgbmStereo(pick(SgbmSettings, settings))

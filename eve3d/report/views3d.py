@@ -121,47 +121,20 @@ def scene_figure(scene: str, meshes: Mapping[str, Path], errors: Mapping[str, tu
     import plotly.graph_objects as go
 
     traces, owner, notes = [], [], []
-    scale = [[i / 16, f"rgb{tuple(int(255 * c) for c in hot_r(np.array([i / 16]))[0])}"] for i in range(17)]
     for k, (method, path) in enumerate(meshes.items()):
         mesh = reduced_surface(path)
         notes.append(mesh.note(method))
-        v, f = mesh.vertices, mesh.faces
-        traces.append(go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], name=f"{method} mesh",
-                                color=METHOD_COLOURS[k % len(METHOD_COLOURS)], legendgroup=method, showlegend=True,
-                                lighting=LIGHTING, lightposition=LIGHT, hoverinfo="name"))
-        owner.append(method)
-        for side, ply in zip(("precision", "recall"), errors.get(method, ())):
-            points, fraction = error_points(ply)
-            p = to_scene(points.vertices, (frames or {}).get(method))
-            traces.append(go.Scatter3d(
-                x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="markers", name=f"{method} {side} errors", legendgroup=method,
-                visible="legendonly",
-                marker={"size": 1.6, "color": fraction * (top or 1.0), "colorscale": scale, "cmin": 0,
-                        "cmax": top or 1.0, "showscale": True,  # shown traces' bars coincide
-                        "colorbar": {"title": {"text": f"distance ({unit})" if top else "distance / scale"},
-                                     "len": 0.6, "x": 0.01, "xanchor": "left", "y": 0.4}},  # left: the legend is right
-                hoverinfo="name"))
-            owner.append(method)
+        own = method_traces(method, mesh, METHOD_COLOURS[k % len(METHOD_COLOURS)], errors.get(method, ()),
+                            (frames or {}).get(method), top, unit)
+        traces += own
+        owner += [method] * len(own)
     if gt is not None:
         surface = reduced_surface(gt)
         notes.append(surface.note("GT"))
-        v = to_scene(surface.vertices, next(iter((frames or {}).values()), None))
-        if surface.faces is not None:
-            f = surface.faces
-            traces.append(go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], name="GT",
-                                    color="#eeeeee", visible="legendonly", showlegend=True, lighting=LIGHTING,
-                                    lightposition=LIGHT, hoverinfo="name"))
-        else:
-            traces.append(go.Scatter3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], mode="markers", name="GT",
-                                       marker={"size": 1.2, "color": "#666666"}, visible="legendonly",
-                                       hoverinfo="name"))
+        traces.append(gt_trace(surface, next(iter((frames or {}).values()), None)))
         owner.append(None)
     if cameras:
-        centres = np.array([c.center for c in cameras])
-        size = 0.05 * float(np.ptp(centres, axis=0).max() or 1.0)
-        line = frusta(cameras, size)
-        traces.append(go.Scatter3d(x=line[:, 0], y=line[:, 1], z=line[:, 2], mode="lines", name="cameras",
-                                   line={"color": "#333333", "width": 2}, hoverinfo="name"))
+        traces.append(cameras_trace(cameras))
         owner.append(None)
     methods = list(meshes)
     for trace, who in zip(traces, owner):  # the first method's mesh is what a reader sees first
@@ -180,6 +153,56 @@ def scene_figure(scene: str, meshes: Mapping[str, Path], errors: Mapping[str, tu
         updatemenus=[{"type": "buttons", "direction": "right", "x": 0, "y": 1.0, "xanchor": "left",
                       "buttons": buttons, "showactive": True}] if len(buttons) > 1 else [])
     return fig
+
+
+def method_traces(method: str, mesh: Reduced, colour: str, errors: Sequence[Path], frame: np.ndarray | None,
+                  top: float | None, unit: str) -> list:
+    """A method's traces: its ``mesh`` in ``colour``, then its precision and recall points
+    (``errors``, carried by ``frame`` into the scene's frame) coloured by distance up to ``top``."""
+    import plotly.graph_objects as go
+
+    scale = [[i / 16, f"rgb{tuple(int(255 * c) for c in hot_r(np.array([i / 16]))[0])}"] for i in range(17)]
+    v, f = mesh.vertices, mesh.faces
+    traces = [go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], name=f"{method} mesh",
+                        color=colour, legendgroup=method, showlegend=True,
+                        lighting=LIGHTING, lightposition=LIGHT, hoverinfo="name")]
+    for side, ply in zip(("precision", "recall"), errors):
+        points, fraction = error_points(ply)
+        p = to_scene(points.vertices, frame)
+        traces.append(go.Scatter3d(
+            x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="markers", name=f"{method} {side} errors", legendgroup=method,
+            visible="legendonly",
+            marker={"size": 1.6, "color": fraction * (top or 1.0), "colorscale": scale, "cmin": 0,
+                    "cmax": top or 1.0, "showscale": True,  # shown traces' bars coincide
+                    "colorbar": {"title": {"text": f"distance ({unit})" if top else "distance / scale"},
+                                 "len": 0.6, "x": 0.01, "xanchor": "left", "y": 0.4}},  # left: the legend is right
+            hoverinfo="name"))
+    return traces
+
+
+def gt_trace(surface: Reduced, frame: np.ndarray | None):
+    """The GT ``surface``, a mesh or points carried by ``frame`` into the scene's frame, hidden at first."""
+    import plotly.graph_objects as go
+
+    v = to_scene(surface.vertices, frame)
+    if surface.faces is not None:
+        f = surface.faces
+        return go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], name="GT",
+                         color="#eeeeee", visible="legendonly", showlegend=True, lighting=LIGHTING,
+                         lightposition=LIGHT, hoverinfo="name")
+    return go.Scatter3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], mode="markers", name="GT",
+                        marker={"size": 1.2, "color": "#666666"}, visible="legendonly", hoverinfo="name")
+
+
+def cameras_trace(cameras: Sequence[Camera]):
+    """The cameras as frusta, sized to a twentieth of the spread of their centres."""
+    import plotly.graph_objects as go
+
+    centres = np.array([c.center for c in cameras])
+    size = 0.05 * float(np.ptp(centres, axis=0).max() or 1.0)
+    line = frusta(cameras, size)
+    return go.Scatter3d(x=line[:, 0], y=line[:, 1], z=line[:, 2], mode="lines", name="cameras",
+                        line={"color": "#333333", "width": 2}, hoverinfo="name")
 
 
 def to_scene(points: np.ndarray, transform: np.ndarray | None) -> np.ndarray:

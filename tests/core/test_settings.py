@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import RenderSettings, SgbmSettings
+from eve3d.core.settings import RenderSettings
+from eve3d.core.settings_stereo import SgbmSettings
 from tests.helpers import REPO, SNAKEFILE
 
 # Blocks every import of torch in the interpreter it is put in front of.

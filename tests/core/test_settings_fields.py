@@ -2,8 +2,9 @@
 import pytest
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import BaselineSettings, JointSettings, MeshSettings, PretrainSettings, StereoSettings
+from eve3d.core.settings import JointSettings, MeshSettings, PretrainSettings
 from eve3d.core.settings_fields import from_mapping, pick
+from eve3d.core.settings_stereo import BaselineSettings, StereoSettings
 
 
 def test_unknown_or_mistyped_setting_is_named():

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import HitnetSettings
+from eve3d.core.settings_stereo import HitnetSettings
 from eve3d.priors.hitnet import HitnetStereo
 from tests.helpers import hitnet_model, plane_pair
 
@@ -107,7 +107,7 @@ def test_the_background_of_a_generated_scene_gets_no_confident_depth(object_scen
 
     from eve3d.core.maps import load_maps
     from eve3d.core.raycast import MeshRaycaster
-    from eve3d.core.settings import MatchCheck
+    from eve3d.core.settings_stereo import MatchCheck
     from eve3d.stereo import stereo_priors
     from eve3d.synth import KINDS
 

@@ -7,7 +7,7 @@ import torch
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps
-from eve3d.core.settings import MccnnSettings
+from eve3d.core.settings_stereo import MccnnSettings
 from eve3d.priors.mccnn import INSTALL, PATHS, MccnnStereo, packaged_weights, semi_global
 from eve3d.stereo import stereo_priors
 from tests.helpers import stereo_scene

@@ -6,7 +6,7 @@ import torch.nn.functional as F
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.maps import load_maps
-from eve3d.core.settings import OnnxSpec
+from eve3d.core.settings_stereo import OnnxSpec
 from eve3d.priors.onnx import OnnxStereo
 from eve3d.stereo import stereo_priors
 from tests.helpers import shifted_pair, stereo_scene

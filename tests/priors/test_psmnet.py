@@ -11,7 +11,7 @@ import yaml
 
 from eve3d.cli import main
 from eve3d.core.errors import Eve3dError
-from eve3d.core.settings import OnnxSpec
+from eve3d.core.settings_stereo import OnnxSpec
 from eve3d.priors.onnx import OnnxStereo
 from eve3d.priors.psmnet import FETCH_COMMAND, IMAGENET_MEAN, IMAGENET_STD, load_psmnet, weights_path
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from eve3d.core.photos import equalizing_curve
-from eve3d.core.settings import SgbmSettings
+from eve3d.core.settings_stereo import SgbmSettings
 from eve3d.priors.sgbm import sgbm_disparity
 from eve3d.tools.bench.stereo import stereo_motorcycle
 from tests.helpers import dim, plane_pair, shifted_pair

@@ -13,8 +13,9 @@ from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_pr
 from eve3d.core.errors import Eve3dError
 from eve3d.core.io.loader import has_poses
 from eve3d.core.layout import PRETRAIN, Layout
-from eve3d.core.settings import PRIOR_BACKENDS, PretrainSettings, RenderSettings
+from eve3d.core.settings import PretrainSettings, RenderSettings
 from eve3d.core.settings_fields import flag, pick
+from eve3d.core.settings_stereo import PRIOR_BACKENDS
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")

@@ -16,7 +16,7 @@ def stereo_motorcycle(block_size: int = 5, lr_threshold: float = 1.0, wls: bool 
     error and bad-2.0 (% of confident pixels off by more than 2 px)."""
     from skimage import data
 
-    from eve3d.core.settings import SgbmSettings
+    from eve3d.core.settings_stereo import SgbmSettings
     from eve3d.priors.sgbm import sgbm_disparity
 
     left, right, gt = data.stereo_motorcycle()
