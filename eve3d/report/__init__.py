@@ -95,7 +95,7 @@ def run_summary(metrics: list[Path], *, out: Path, failed: Path | None = None) -
 
 def run_show_summary(*, summary: Path) -> None:
     """``eve3d summary --show``: the tables of a written ``summary.csv`` (and the views' beside
-    it), as the summary printed them, without gathering anything (``make demo`` prints its
+    it), as the summary printed them, without gathering anything (the workflow prints its
     table last this way)."""
     from eve3d.core.errors import Eve3dError
 

@@ -99,6 +99,61 @@ def test_default_config_dry_run_lists_every_stage(tmp_path):
         assert rule in r.stdout + r.stderr
 
 
+def training_job_configs(dry_run: str) -> dict[tuple[str, str], dict]:
+    """(stage, scene) → the resolved sections a training job of ``snakemake -n -p`` reads
+    (its ``--config``): ``pretrain`` and each joint stage, named ``joint METHOD``."""
+    import shlex
+
+    configs = {}
+    for line in dry_run.splitlines():
+        if " -m eve3d pretrain " in line or " -m eve3d joint " in line:
+            args = shlex.split(line[line.index("python -m eve3d"):])
+            stage = args[3] if args[3] == "pretrain" else f"joint {args[args.index('--method') + 1]}"
+            scene = Path(args[args.index("--out") + 1]).parent.name  # results/{scene}/{stage or method}
+            configs[stage, scene] = json.loads(args[args.index("--config") + 1])
+    return configs
+
+
+@pytest.mark.parametrize("replace", [True, False])
+def test_a_capture_config_from_the_default_trains_at_the_preset_and_the_demo_at_its_cuts(tmp_path, replace):
+    """config/config.yaml with its scenes swapped for a folder of photos plans the training at
+    the cpu preset as it is, with or without ``--replace-workflow-config`` (without it, it is
+    merged over config/config.yaml); make demo's config/demo.yaml plans its cuts."""
+    from eve3d.config import resolve_config
+
+    photos = tmp_path / "capture" / "images"
+    photos.mkdir(parents=True)
+    for i in range(3):
+        Image.fromarray(np.full((48, 64, 3), 40 * i, np.uint8)).save(photos / f"{i}.jpg")
+    config = yaml.safe_load((REPO / "config/config.yaml").read_text())
+    config.update(results=str(tmp_path / "results"), scenes={"mine": {"path": str(photos.parent)}})
+    (tmp_path / "mine.yaml").write_text(yaml.safe_dump(config))
+    r = snakemake("-n", "-p", "-c2", "--configfile", str(tmp_path / "mine.yaml"),
+                  *(["--replace-workflow-config"] if replace else []))
+    assert r.returncode == 0, r.stderr[-3000:]
+    jobs = training_job_configs(r.stdout + r.stderr)
+    preset = resolve_config({"preset": "cpu", "scenes": {"mine": {"path": str(photos.parent)}}})
+    assert {stage for stage, scene in jobs if scene == "mine"} == {"pretrain", "joint pgsr", "joint eve3d"}
+    for (stage, scene), job in jobs.items():
+        section = stage.split()[0]
+        if scene == "mine":
+            # the protocol adds its own keys (nvs holds views out)
+            assert {k: job[section][k] for k in preset[section]} == preset[section], stage
+            assert job["train"] == preset["train"], stage
+    threads = {job.title: job.threads for job in log_jobs((r.stdout + r.stderr).splitlines())}
+    assert threads["joint mine eve3d"] == threads["joint mine pgsr"] == 2  # every core: one training job at a time
+
+    r = snakemake("-n", "-p", "-c2", "--configfile", str(REPO / "config/demo.yaml"), "--config",
+                  f"results={tmp_path / 'demo'}")
+    assert r.returncode == 0, r.stderr[-3000:]
+    demo = yaml.safe_load((REPO / "config/demo.yaml").read_text())
+    jobs = training_job_configs(r.stdout + r.stderr)
+    assert jobs["pretrain", "synthetic-object"]["pretrain"]["iterations"] == demo["pretrain"]["iterations"] < \
+        preset["pretrain"]["iterations"]
+    assert jobs["joint eve3d", "synthetic-object"]["joint"]["densify"]["max_gaussians"] == \
+        demo["joint"]["densify"]["max_gaussians"]
+
+
 @pytest.mark.parametrize("cores, training_jobs", [(2, 1), (4, 1), (2, 2), (4, 2)])
 def test_training_and_network_jobs_take_their_share_of_the_cores(tmp_path, cores, training_jobs):
     """The pretrain takes every core (it starts first); a joint stage's job and a stereo
@@ -165,6 +220,9 @@ def test_tiny_training_run(tmp_path):
     rows = list(csv.DictReader(open(layout.summary())))
     assert [(row["scene"], row["method"]) for row in rows] == [
         ("tiny", "3dgs"), ("tiny", "eve3d"), ("tiny", "pgsr"), ("tiny", "stereo-tsdf")]
+    # the table printed once (by the workflow's onsuccess, after every job), as the summary wrote it
+    table = (layout.logs() / "summary.log").read_text()
+    assert "fscore" in table and (r.stdout + r.stderr).count(table.splitlines()[0]) == 1 and table in r.stdout
     assert all(0 < float(row["fscore"]) <= 1 for row in rows)
     # the depth each mesh fused, against the exact depth (a GT mesh gives it)
     assert all(abs(float(row["depth_signed_error"])) < 0.05 and 0 < float(row["depth_error"]) < 0.1 for row in rows)

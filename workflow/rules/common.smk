@@ -4,6 +4,7 @@ import json
 import os
 import shlex
 import sys
+import time
 from pathlib import Path
 
 REPO = str(Path(workflow.basedir).parent)  # workflow/Snakefile: the checkout whose package the jobs run
@@ -24,6 +25,7 @@ except Eve3dError as e:
 config.clear()
 config.update(_resolved)
 
+STARTED = int(time.time())  # whole seconds: a file system may keep coarser times than the clock
 LAYOUT = Layout(config["results"])  # every path under the results folder (eve3d/core/layout.py)
 SCENES = list(config["scenes"])
 from eve3d.core.methods import GAUSSIAN_DEVICE, methods
