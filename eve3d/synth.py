@@ -318,9 +318,31 @@ KINDS: dict[str, Kind] = {
 }
 
 
-def shade(parts: list[Part], hits, seed: int) -> np.ndarray:
-    """Lambertian colour under a fixed light (view independent), background black."""
+SKY = ((0.83, 0.87, 0.92), (0.56, 0.70, 0.89))
+"""The ``sky`` background's colour at the nadir and at the zenith: a pale blue, brighter
+below, a faint gradient (about 30 grey levels across a view)."""
+BACKDROP = Material("noise", (0.42, 0.48, 0.38), (0.80, 0.76, 0.66), scale=12.0)
+"""The ``backdrop`` background: value noise on the sphere of directions (foliage, a far
+street), about 4 px for its finest detail at the generated sizes."""
+
+
+def background_colour(directions: np.ndarray, kind: str, seed: int) -> np.ndarray:
+    """The colour (N, 3) of ``kind`` (``BACKGROUNDS``) seen along unit ``directions`` (N, 3):
+    it depends on the direction alone, as a background at infinity does."""
+    if kind == "sky":
+        up = (directions[:, 2:3] + 1) / 2
+        return np.asarray(SKY[0]) * (1 - up) + np.asarray(SKY[1]) * up
+    if kind == "backdrop":
+        return BACKDROP.albedo(directions, seed + 104729)
+    return np.zeros_like(directions)
+
+
+def shade(parts: list[Part], hits, seed: int, background: str = "black") -> np.ndarray:
+    """Lambertian colour under a fixed light (view independent); ``background``: what a ray
+    that meets no surface sees (``BACKGROUNDS``)."""
     rgb = np.zeros(hits.depth.shape + (3,))
+    if background != "black":
+        rgb[~hits.valid] = background_colour(hits.direction[~hits.valid], background, seed)
     for k, part in enumerate(parts):
         sel = hits.geometry == k
         if sel.any():
@@ -355,9 +377,10 @@ def point_colors(parts: list[Part], caster: MeshRaycaster, cams: list[Camera], p
 
 def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: int = 240, seed: int = 0,
              images_only: bool = False, supersample: int = 2, arc: float = 360.0, matcher: str = "exhaustive",
-             surface_samples: int = 0) -> Path:
+             surface_samples: int = 0, background: str = "black") -> Path:
     """Render the synthetic scene ``kind`` into ``out`` (written atomically); ``arc`` limits
-    the cameras' azimuth range in degrees (a DTU-like front arc for object scenes).
+    the cameras' azimuth range in degrees (a DTU-like front arc for object scenes); ``background``:
+    what the photos show where no surface is (``BACKGROUNDS``; the ground truth is the same).
 
     The sparse points are what a user's SfM gives for known poses: features of the rendered
     photos matched (``matcher``: ``exhaustive`` or ``sequential``, the cameras' order) and
@@ -379,7 +402,7 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
         for cam in tqdm(cams, desc=f"synth {kind}", unit="view"):
             with phase("render views"):
                 hits = caster.cast(cam, offsets)
-                rgb = shade(parts, hits, seed).mean(axis=0)
+                rgb = shade(parts, hits, seed, background).mean(axis=0)
                 if spec.scene_kind == "object":
                     fg = np.isin(caster.cast(cam).geometry, [k for k, p in enumerate(parts) if p.foreground])
             write_image(tmp / "images" / cam.name, np.clip(rgb * 255 + 0.5, 0, 255).astype(np.uint8))
@@ -401,7 +424,7 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
         o3d.io.write_triangle_mesh(str(tmp / "gt" / "mesh.ply"), mesh)
         meta = {"kind": spec.scene_kind, "gt_mesh": "gt/mesh.ply",
                 "generator": {"kind": kind, "views": views, "width": width, "height": height, "seed": seed,
-                              "arc": arc}}
+                              "arc": arc, "background": background}}
         if spec.scene_kind == "object":
             meta["object_radius"] = 1.0
         (tmp / METADATA).write_text(json.dumps(meta, indent=2))
@@ -413,5 +436,5 @@ def run_synth(settings: SyntheticSettings, *, kind: str, out: Path, images_only:
     with phase("generate"):
         generate(kind, Path(out), views=settings.views, width=settings.width, height=settings.height,
                  seed=settings.seed, images_only=images_only, arc=settings.arc,
-                 surface_samples=settings.surface_samples)
+                 surface_samples=settings.surface_samples, background=settings.background)
     print(f"wrote {out}")

@@ -59,3 +59,37 @@ def test_generated_scenes_start_from_points_sfm_triangulates(object_dataset):
     assert all(len(v) >= 2 for v in scene.point_views)
     colmap = read_colmap(object_dataset / "sparse" / "0", object_dataset / "images")
     assert [c.center.round(9).tolist() for c in colmap.cameras] == [c.center.round(9).tolist() for c in scene.cameras]
+
+
+def test_a_background_shows_where_no_surface_is_and_stays_empty(tmp_path):
+    """The sky and the backdrop change only the pixels whose rays meet no surface: not black
+    there (the sky plain, the backdrop textured), the same surface elsewhere, and the same
+    ground truth, cameras and exact depth (those pixels stay empty)."""
+    import cv2
+
+    from eve3d.core.fileio import read_image
+    from eve3d.synth import generate
+
+    images, depth = {}, None
+    for background in ("black", "sky", "backdrop"):
+        out = generate("object", tmp_path / background, views=2, width=96, height=72, surface_samples=200,
+                       background=background)
+        scene = load_scene(out)
+        images[background] = np.stack([read_image(c.image_path).astype(float) for c in scene.cameras])
+        caster = MeshRaycaster.from_file(scene.gt_mesh)
+        exact = np.stack([caster.cast(c).depth for c in scene.cameras])
+        assert depth is None or np.array_equal(exact, depth)
+        depth = exact
+    empty = depth == 0
+    # a pixel at a silhouette mixes surface and background in its 2×2 samples
+    inside = np.stack([cv2.erode((~e).astype(np.uint8), np.ones((3, 3), np.uint8)) for e in empty]).astype(bool)
+    outside = np.stack([cv2.erode(e.astype(np.uint8), np.ones((3, 3), np.uint8)) for e in empty]).astype(bool)
+    assert 0.1 < outside.mean() and inside.mean() > 0.5
+    assert images["black"][outside].max() == 0
+    for background in ("sky", "backdrop"):
+        assert np.array_equal(images[background][inside], images["black"][inside]), background
+        assert images[background][outside].min() > 60, background  # lit, nowhere near black
+    sky = np.stack([local_std(v, 5) for v in images["sky"]])[outside]
+    backdrop = np.stack([local_std(v, 5) for v in images["backdrop"]])[outside]
+    print(f"grey std over 5×5 on the background: sky {np.median(sky):.2f}, backdrop {np.median(backdrop):.2f}")
+    assert np.median(sky) < 1.0 < 3.0 < np.median(backdrop)  # plain against textured

@@ -27,6 +27,8 @@ class Hits:
     """World-space hit points."""
     triangle: np.ndarray
     """Index of the triangle hit within its part (-1 on a miss)."""
+    direction: np.ndarray
+    """World-space unit direction of each ray (what a miss sees of the background)."""
 
     @property
     def valid(self) -> np.ndarray:
@@ -61,7 +63,8 @@ class MeshRaycaster:
         uv = np.stack([u[None] + offsets[:, 0, None, None], v[None] + offsets[:, 1, None, None]], axis=-1)
         hits = self.cast_uv(cam, uv)
         if pixel_offsets is None:
-            hits = Hits(hits.depth[0], hits.normal[0], hits.geometry[0], hits.points[0], hits.triangle[0])
+            hits = Hits(hits.depth[0], hits.normal[0], hits.geometry[0], hits.points[0], hits.triangle[0],
+                        hits.direction[0])
         return hits
 
     def hit_distances(self, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
@@ -94,8 +97,9 @@ class MeshRaycaster:
         points = cam.center + dirs * depth[:, None]
         triangle = np.where(hit, out["primitive_ids"].numpy().astype(np.int64), -1)
         shape = uv.shape[:-1]
+        unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
         return Hits(depth.reshape(shape), np.where(hit[:, None], normal, 0).reshape(shape + (3,)),
-                    geom.reshape(shape), points.reshape(shape + (3,)), triangle.reshape(shape))
+                    geom.reshape(shape), points.reshape(shape + (3,)), triangle.reshape(shape), unit.reshape(shape + (3,)))
 
 
 def seen_by(caster: MeshRaycaster, cams: list[Camera], points: np.ndarray, stop_at: int | None = None,

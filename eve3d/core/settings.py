@@ -25,6 +25,11 @@ MATCHERS = ("exhaustive", "sequential")
 GROUND_TRUTH_CHECKS = ("error", "warn", "off")
 """What a failed ground-truth check does (``evaluate.ground_truth_check``): stop the run,
 warn and go on, or the check is skipped."""
+BACKGROUNDS = ("black", "sky", "backdrop")
+"""What a generated scene shows where a ray meets no surface (``synthetic.background``): black,
+a plain sky (a pale blue with a faint gradient by elevation), or a far textured backdrop
+(value noise on the sphere of directions, at infinity: no parallax). Such pixels stay empty
+(no depth) whatever they show."""
 TNT_POINTS = ("vertices", "sampled")
 """What of a mesh the tnt protocol scores (``evaluate.tnt_points``): its vertices, as the
 official toolbox reads a mesh PLY, or the vertices plus area samples."""
@@ -48,6 +53,9 @@ class SyntheticSettings(Checked):
     """Seed of the texture noise and the cameras' random placement."""
     arc: float = setting(360.0, gt=0, le=360)
     """Azimuth range of the cameras in degrees (a DTU-like front arc for object scenes)."""
+    background: str = setting("black", choices=BACKGROUNDS)
+    """What the photos show where no surface is (``BACKGROUNDS``): ``black``, a plain ``sky``
+    or a far textured ``backdrop``, as photos have them. The ground truth is the same."""
     surface_samples: int = setting(0, ge=0)
     """0: the sparse points are SIFT features of the photos triangulated with the known poses,
     as a user's SfM gives them. > 0: that many exact surface samples instead, for scenes too
