@@ -29,7 +29,7 @@ from eve3d.core.settings_fields import pick
 from eve3d.core.settings_stereo import PRIOR_BACKENDS, BaselineSettings, MatchCheck, StereoSettings
 from eve3d.core.timing import phase
 from eve3d.gaussians.neighbours import select_neighbours
-from eve3d.priors.matching import grey
+from eve3d.priors.matching import grey, local_std
 
 
 def right_camera(cam: Camera, baseline: float) -> Camera:
@@ -175,13 +175,38 @@ def checked_confidence(left: np.ndarray, right: np.ndarray, disp: np.ndarray, co
     ok = (disp > search[0] + check.range_margin) & (disp < search[1] - check.range_margin)
     if check.ncc_threshold > 0:
         ok &= warped_ncc(left, right, disp, margin, check.ncc_window) >= check.ncc_threshold
+    matched = (disp > 0) & (confidence > 0)
+    if check.flat_level > 0:  # before the edges: where an extrapolated band ends is an edge too
+        matched &= interpolated(left, check.flat_level)
+        ok &= matched
     if check.edge_window:
-        ok &= ~near_jump(disp, (disp > 0) & (confidence > 0), check.jump, check.edge_window)
+        ok &= ~near_jump(disp, matched, check.jump, check.edge_window)
     if alpha is not None and check.min_alpha > 0:
         ok &= rendered_surface(alpha, check.min_alpha, check.edge_window)
     if check.min_light > 0:
         ok &= lit(left, check.min_light)
     return np.where(ok, confidence, 0).astype(np.float32)
+
+
+FLAT_WINDOW = 5
+"""Window of the flat test (``MatchCheck.flat_level``), px: a matcher's block, about."""
+
+
+def interpolated(photo: np.ndarray, flat_level: float) -> np.ndarray:
+    """Pixels that are textured, or flat and enclosed by textured pixels on two opposite
+    sides, in their row or in their column (``MatchCheck.flat_level``)."""
+    import cv2
+
+    box = np.ones((FLAT_WINDOW, FLAT_WINDOW), np.uint8)
+    textured = ~cv2.dilate((local_std(photo, FLAT_WINDOW) < flat_level).astype(np.uint8), box).astype(bool)
+    return textured | _between(textured) | _between(textured.T).T
+
+
+def _between(textured: np.ndarray) -> np.ndarray:
+    """Pixels with a ``textured`` pixel to their left and one to their right in their row."""
+    left = np.logical_or.accumulate(textured, axis=1)
+    right = np.logical_or.accumulate(textured[:, ::-1], axis=1)[:, ::-1]
+    return left & right
 
 
 def lit(photo: np.ndarray, min_light: float) -> np.ndarray:

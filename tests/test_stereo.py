@@ -89,8 +89,9 @@ def test_a_silhouette_gives_the_empty_background_no_confident_depth():
     """A textured square on an empty black background: SGBM's window straddling its edge gives
     the background beside it the square's disparity (foreground fattening), and the
     left–right and NCC checks pass it. The jump check drops it, so does the pretrained
-    model's alpha (here exactly the square), and so does the black background's lack of any
-    light; what stays confident is right."""
+    model's alpha (here exactly the square), so does the flat test (the black is a plain
+    background), and so does the black background's lack of any light (``min_light``, off by
+    default); what stays confident is right."""
     left, right = shifted_pair(12, grain=2)
     square = np.zeros(left.shape[:2], bool)
     square[24:72, 40:100] = True
@@ -101,10 +102,40 @@ def test_a_silhouette_gives_the_empty_background_no_confident_depth():
     def confident(alpha=None, **check):
         return checked_confidence(left, right, disp, conf, (0, 40), check=MatchCheck(**check), alpha=alpha) > 0
 
-    assert (confident(edge_window=0, min_alpha=0, min_light=0) & ~square).sum() > 100  # the halo
-    for c in (confident(min_alpha=0, min_light=0), confident(square.astype(np.float32), edge_window=0, min_light=0),
-              confident(edge_window=0, min_alpha=0), confident(square.astype(np.float32))):
+    assert (confident(edge_window=0, min_alpha=0, flat_level=0) & ~square).sum() > 100  # the halo
+    for c in (confident(min_alpha=0, flat_level=0), confident(square.astype(np.float32), edge_window=0, flat_level=0),
+              confident(min_alpha=0), confident(edge_window=0, min_alpha=0, flat_level=0, min_light=1),
+              confident(square.astype(np.float32))):
         assert not (c & ~square).any() and c[square].mean() > 0.5 and np.all(disp[c] == 12)
+
+
+def test_a_plain_sky_gets_no_depth_where_a_plain_wall_between_edges_keeps_it():
+    """A network answers everywhere: here the disparity of two textured squares carried
+    into everything around them, as HITNet carries a table's into a sky beyond its edge.
+    The plain wall between the squares is enclosed by their texture and keeps its depth (a
+    matcher interpolates it between its edges); the plain sky around them, open to the
+    image's border, loses it (there it extrapolates). Without the flat test every pixel is
+    confident."""
+    rng = np.random.default_rng(0)
+    h, w = 80, 140
+    left = np.tile(np.linspace(200, 215, h)[:, None, None], (1, w, 3))  # a sky: plain, a faint gradient
+    for cols in (slice(10, 40), slice(90, 120)):
+        left[20:60, cols] = rng.uniform(0, 255, (40, 30, 1))
+    left[20:60, 40:90] = 150  # a plain wall between them
+    left = left.astype(np.uint8)
+    disp, everywhere = np.full((h, w), 12.0, np.float32), np.ones((h, w), np.float32)
+
+    def confident(**check):
+        check = MatchCheck(ncc_threshold=0, min_alpha=0, **check)
+        return checked_confidence(left, left, disp, everywhere, (0, 40), check=check) > 0
+
+    assert confident(flat_level=0).all()
+    kept = confident()
+    assert kept[24:56, 50:80].all()  # the wall, a few pixels in from its edges
+    assert kept[24:56, 14:36].all() and kept[24:56, 94:116].all()  # the squares
+    sky = np.ones((h, w), bool)
+    sky[20:60, 10:120] = False
+    assert not kept[sky].any()
 
 
 def test_priors_without_the_pretrained_models_alpha_are_refused_by_name(tmp_path):

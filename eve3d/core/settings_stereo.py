@@ -152,11 +152,16 @@ class MatchCheck(Checked):
     texture and gives the background beside it the foreground's disparity (0 = off)."""
     jump: float = setting(1.0, gt=0)
     """Disparity difference between adjacent pixels that counts as a jump (px)."""
-    min_light: float = setting(1.0, ge=0, le=255)
+    flat_level: float = setting(1.0, ge=0)
+    """A pixel is flat where the photo's grey level (0–255) varies less than this over 5×5
+    pixels within 5 px of it. A flat pixel is confident only where textured pixels enclose it
+    on two opposite sides (left and right, or above and below): there a matcher interpolates
+    a plain wall between its edges; elsewhere it extrapolates (HITNet carries the table a
+    band into a plain sky beyond its edge). 0 = off."""
+    min_light: float = setting(0.0, ge=0, le=255)
     """Not confident where the photo (as matched, 0–255) has a grey level below this within
-    a pixel: no light came from there, so there is nothing to match, and a network that
-    answers everywhere carries its neighbours' depth into it (HITNet: the table's depth a
-    few pixels into the black background beyond its edge). 0 = off."""
+    a pixel: no light came from there, so there is nothing to match. Off (0) by default: a
+    photo's background is never black, and ``flat_level`` covers a black one as a sky."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
