@@ -177,6 +177,12 @@ def _cmd_bench_methods(a: argparse.Namespace) -> None:
     methods.run_bench_workflow(a.benchmark, a.config, a.cores, a.report_only, a.json)
 
 
+def _cmd_bench_degrade(a: argparse.Namespace) -> None:
+    from eve3d.tools.bench import degrade
+
+    degrade.run_bench_degrade(a.config, a.cores, a.report_only, a.json)
+
+
 def _cmd_bench_standin(a: argparse.Namespace) -> None:
     from eve3d.tools import standin
 
@@ -520,7 +526,9 @@ def _add_bench_run_parsers(what) -> None:
                                                         "and print scores, times and the priors' accuracy"),
             ("real", _cmd_bench_methods, "real", "run a real capture as a user would (photos and their path, Snakemake) "
                                               "and print views registered, stage times, held-out PSNR/SSIM, the "
-                                              "priors' density and agreement, the meshes' size")]:
+                                              "priors' density and agreement, the meshes' size"),
+            ("degrade", _cmd_bench_degrade, "degrade", "run the methods against the exact depth with a stereo prior's "
+                                                       "errors, one profile of errors at a time (Snakemake), and print F")]:
         me = what.add_parser(name, help=help)
         me.add_argument("--config", default=f"config/bench/{config}.yaml", help="workflow config of the benchmark")
         me.add_argument("--cores", type=int, default=2)

@@ -338,7 +338,7 @@ def run_stereo_depth(settings: StereoSettings, *, scene: Path, out: Path, stereo
         raise Eve3dError(f"--backend {backend.name} needs --stereo (the output folder of `eve3d stereo-render`)")
     module = importlib.import_module(backend.module)
     if backend.reads == "gt_mesh":
-        module.priors_from_mesh(loaded, out, Path(gt_mesh) if gt_mesh else None, preview=preview)
+        module.priors_from_mesh(loaded, out, Path(gt_mesh) if gt_mesh else None, preview=preview, settings=settings)
     else:
         with phase("load model"):
             matcher = module.matcher(settings)

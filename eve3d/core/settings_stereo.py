@@ -26,7 +26,7 @@ class PriorBackend:
     """Where it lives. A backend that reads the virtual stereo pairs has ``matcher(settings)``
     there (the ``stereo`` settings in, ``matcher(left, right, (min, max))`` → disparity and
     confidence out, for :func:`eve3d.stereo.stereo_priors`); one that reads the GT mesh has
-    ``priors_from_mesh(scene, out, mesh, preview)``."""
+    ``priors_from_mesh(scene, out, mesh, preview, settings)``."""
     device: str
     """What its cluster job asks for: ``cpu``, or ``gpu`` for a network (onnxruntime's CUDA
     provider where it has one; the CPU otherwise)."""
@@ -238,6 +238,30 @@ class HitnetSettings(Checked):
 
 
 @dataclass
+class Degradation(Checked):
+    """Errors the ``oracle`` backend puts into the exact depth (the ``stereo.oracle`` mapping;
+    ``eve3d.priors.oracle``), each as a stereo prior makes it, so that a method is measured
+    against a prior of known quality (``eve3d bench degrade``). All 0: the exact depth."""
+
+    SECTION: ClassVar[str] = "stereo.oracle"
+    noise: float = setting(0.0, ge=0)
+    """Relative depth noise: a smooth random field (correlated over 5×5 px, as a matcher's
+    window correlates its errors) of this standard deviation multiplies the depth."""
+    outliers: float = setting(0.0, ge=0, le=1)
+    """Share of the surface pixels, in patches, whose depth is off by 5–15 % (confident and wrong)."""
+    empty: float = setting(0.0, ge=0, le=1)
+    """Share of the empty pixels (no surface) given a confident depth: those nearest a surface,
+    each that surface's depth continued, as a network carries a table past its edge."""
+    weak_bias: float = setting(0.0, ge=-0.5, le=0.5)
+    """Relative bias on the weakly textured pixels (the photo's grey level varies by less than
+    2 over 5×5 px): their depth × (1 + this); negative = too near."""
+    holes: float = setting(0.0, ge=0, le=1)
+    """Share of the surface pixels, in patches, left without confidence."""
+    seed: int = 0
+    """Seed of the random fields (the same errors for every method)."""
+
+
+@dataclass
 class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck):
     """The ``stereo`` section: the prior source, the virtual baseline, SGBM's settings and
     the confidence checks (each stage reads its part with :func:`pick`)."""
@@ -251,3 +275,5 @@ class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck):
     """The ``mccnn`` backend's settings."""
     hitnet: HitnetSettings = setting(factory=HitnetSettings)
     """The ``hitnet`` backend's settings."""
+    oracle: Degradation = setting(factory=Degradation)
+    """The ``oracle`` backend's errors (none: the exact depth)."""
