@@ -33,11 +33,13 @@ def profile_rows(results: Path, names) -> dict[str, list[dict]]:
 def format_degrade_table(profiles: dict[str, dict], rows: dict[str, list[dict]]) -> str:
     """F per profile (rows) and scene × method (columns), each profile's errors beside it."""
     columns = list(dict.fromkeys((r["scene"], r["method"]) for rs in rows.values() for r in rs))
-    head = f"{'profile':<16} " + " ".join(f"{s[:10] + ' ' + m[:11]:>23}" for s, m in columns) + "  errors"
+    names = [f"{scene}/{method}" for scene, method in columns]
+    head = f"{'F':<16} " + " ".join(f"{n:>{max(len(n), 6)}}" for n in names) + "  errors"
     lines = [head, "-" * len(head)]
     for name, rs in rows.items():
         f = {(r["scene"], r["method"]): r.get("fscore") for r in rs}
-        cells = " ".join(f"{'-' if f.get(c) in (None, '') else format(float(f[c]), '.4f'):>23}" for c in columns)
+        cells = " ".join(f"{'-' if f.get(c) in (None, '') else format(float(f[c]), '.4f'):>{max(len(n), 6)}}"
+                         for c, n in zip(columns, names))
         errors = ", ".join(f"{k} {v:g}" for k, v in (profiles.get(name) or {}).items()) or "none (exact)"
         lines.append(f"{name:<16} {cells}  {errors}")
     return "\n".join(lines)

@@ -27,7 +27,7 @@ def test_the_table_has_each_profiles_f_and_errors(tmp_path, capsys):
         (folder / f"{name}.json").write_text(json.dumps(rows))
     run_bench_degrade(config, report_only=True)
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0].split()[:5] == ["profile", "obj", "eve3d", "obj", "pgsr"]
+    assert lines[0].split() == ["F", "obj/eve3d", "obj/pgsr", "errors"]
     assert lines[2].split() == ["exact", "0.9500", "0.8000", "none", "(exact)"]
     assert lines[3].split() == ["noisy", "0.8100", "0.8000", "holes", "0.5,", "noise", "0.02"] and len(lines) == 4
     run_bench_degrade(config, report_only=True, as_json=True)
