@@ -245,8 +245,13 @@ class Degradation(Checked):
 
     SECTION: ClassVar[str] = "stereo.oracle"
     noise: float = setting(0.0, ge=0)
-    """Relative depth noise: a smooth random field (correlated over 5×5 px, as a matcher's
-    window correlates its errors) of this standard deviation multiplies the depth."""
+    """Relative depth noise: a smooth random field (correlated over ``scale`` px) of this
+    standard deviation multiplies the depth."""
+    scale: int = setting(5, ge=1)
+    """Size of the errors in px: the noise's correlation length, the outliers' and the holes'
+    patches. A matcher's window correlates its errors over its block (5); a network's on a plain
+    wall over much of the view (HITNet's on the rooms keep two thirds of their spread averaged
+    over 45×45 px)."""
     outliers: float = setting(0.0, ge=0, le=1)
     """Share of the surface pixels, in patches, whose depth is off by 5–15 % (confident and wrong)."""
     empty: float = setting(0.0, ge=0, le=1)

@@ -54,15 +54,15 @@ def degraded(depth: np.ndarray, photo: np.ndarray, errors: Degradation, rng: np.
     surface = depth > 0
     out = depth.astype(np.float64).copy()
     if errors.noise:
-        out *= 1 + errors.noise * smooth_field(depth.shape, rng)
+        out *= 1 + errors.noise * smooth_field(depth.shape, rng, errors.scale)
     if errors.weak_bias:
         weak = local_std(cv2.resize(photo, depth.shape[::-1], interpolation=cv2.INTER_AREA), 5) < WEAK_LEVEL
         out[weak] *= 1 + errors.weak_bias
     if errors.outliers:
-        wrong = patches(surface, errors.outliers, rng)
+        wrong = patches(surface, errors.outliers, rng, errors.scale)
         sign = np.where(rng.random(depth.shape) < 0.5, -1.0, 1.0)
         out[wrong] *= 1 + sign[wrong] * rng.uniform(0.05, 0.15, depth.shape)[wrong]
-    confident = surface & ~patches(surface, errors.holes, rng) if errors.holes else surface.copy()
+    confident = surface & ~patches(surface, errors.holes, rng, errors.scale) if errors.holes else surface.copy()
     if errors.empty and (~surface).any() and surface.any():
         # each empty pixel's nearest surface pixel, and the nearest first
         distance, nearest = cv2.distanceTransformWithLabels((~surface).astype(np.uint8), cv2.DIST_L2, 5,
@@ -76,19 +76,17 @@ def degraded(depth: np.ndarray, photo: np.ndarray, errors: Degradation, rng: np.
     return np.where(confident | surface, out, 0), confident.astype(np.float32)
 
 
-def smooth_field(shape: tuple[int, int], rng: np.random.Generator, window: int = 5) -> np.ndarray:
-    """Gaussian noise averaged over ``window``² px, rescaled to unit standard deviation."""
+def smooth_field(shape: tuple[int, int], rng: np.random.Generator, scale: int) -> np.ndarray:
+    """Gaussian noise correlated over about ``scale`` px, of unit standard deviation."""
     import cv2
 
-    field = cv2.blur(rng.standard_normal(shape), (window, window))
+    field = cv2.GaussianBlur(rng.standard_normal(shape), (0, 0), scale / 4) if scale > 1 else rng.standard_normal(shape)
     return field / max(field.std(), 1e-12)
 
 
-def patches(where: np.ndarray, share: float, rng: np.random.Generator, size: int = 15) -> np.ndarray:
-    """About ``share`` of the ``where`` pixels, in blobs some ``size`` px across."""
-    import cv2
-
+def patches(where: np.ndarray, share: float, rng: np.random.Generator, scale: int) -> np.ndarray:
+    """About ``share`` of the ``where`` pixels, in blobs some ``scale`` px across."""
     if share <= 0 or not where.any():
         return np.zeros_like(where)
-    field = cv2.GaussianBlur(rng.standard_normal(where.shape), (0, 0), size / 4)
+    field = smooth_field(where.shape, rng, scale)
     return where & (field > np.quantile(field[where], 1 - share))
