@@ -262,6 +262,9 @@ class Degradation(Checked):
     2 over 5×5 px): their depth × (1 + this); negative = too near."""
     holes: float = setting(0.0, ge=0, le=1)
     """Share of the surface pixels, in patches, left without confidence."""
+    weak_holes: float = setting(0.0, ge=0, le=1)
+    """Share of the weakly textured surface pixels, in patches, left without confidence: where
+    a matcher finds nothing, the same in every view (a plain wall), so other views cannot fill it."""
     seed: int = 0
     """Seed of the random fields (the same errors for every method)."""
 

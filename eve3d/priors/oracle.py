@@ -53,16 +53,17 @@ def degraded(depth: np.ndarray, photo: np.ndarray, errors: Degradation, rng: np.
 
     surface = depth > 0
     out = depth.astype(np.float64).copy()
+    weak = local_std(cv2.resize(photo, depth.shape[::-1], interpolation=cv2.INTER_AREA), 5) < WEAK_LEVEL
     if errors.noise:
         out *= 1 + errors.noise * smooth_field(depth.shape, rng, errors.scale)
     if errors.weak_bias:
-        weak = local_std(cv2.resize(photo, depth.shape[::-1], interpolation=cv2.INTER_AREA), 5) < WEAK_LEVEL
         out[weak] *= 1 + errors.weak_bias
     if errors.outliers:
         wrong = patches(surface, errors.outliers, rng, errors.scale)
         sign = np.where(rng.random(depth.shape) < 0.5, -1.0, 1.0)
         out[wrong] *= 1 + sign[wrong] * rng.uniform(0.05, 0.15, depth.shape)[wrong]
-    confident = surface & ~patches(surface, errors.holes, rng, errors.scale) if errors.holes else surface.copy()
+    confident = surface & ~patches(surface, errors.holes, rng, errors.scale)
+    confident &= ~patches(surface & weak, errors.weak_holes, rng, errors.scale)
     if errors.empty and (~surface).any() and surface.any():
         # each empty pixel's nearest surface pixel, and the nearest first
         distance, nearest = cv2.distanceTransformWithLabels((~surface).astype(np.uint8), cv2.DIST_L2, 5,

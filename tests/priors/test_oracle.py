@@ -28,7 +28,7 @@ def test_degraded_priors_have_the_errors_they_are_given():
     """Each error of ``stereo.oracle`` alone, on a depth map with an empty quarter and a plain
     band in its photo, measured back: the noise's median error is 0.674 σ (a normal's), the
     outliers' share of pixels off by over 5 %, the empty pixels given the nearest surface's depth
-    (those nearest first), the bias on the plain band only, the holes' share of the surface;
+    (those nearest first), the bias on the plain band only, the holes' share of the surface, and of the plain band alone;
     and no error at all leaves the exact depth."""
     from eve3d.core.settings_stereo import Degradation
     from eve3d.priors.oracle import degraded
@@ -58,3 +58,5 @@ def test_degraded_priors_have_the_errors_they_are_given():
     assert np.allclose(rel[plain[surface]], -0.02) and np.mean(rel[~plain[surface]] == 0) > 0.7
     out, conf = run(holes=0.2)
     assert (conf[surface] == 0).mean() == pytest.approx(0.2, abs=0.01) and np.array_equal(out, depth)
+    out, conf = run(weak_holes=0.5)
+    assert (conf[plain] == 0).mean() == pytest.approx(0.5, abs=0.05) and (conf[surface & ~plain] == 0).mean() < 0.1
