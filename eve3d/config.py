@@ -112,6 +112,20 @@ def has_gt_mesh(scene: dict) -> bool:
     return "synthetic" in scene or "gt_mesh" in scene
 
 
+def named_methods(config: dict, name: str, scores: str | None = None) -> list[str]:
+    """The methods scene ``name`` of a resolved workflow ``config`` asks for: its own, else
+    the config's, else the default of what its protocol scores (``scores``, or found from the
+    scene; ``eve3d.core.methods.default_methods``)."""
+    from eve3d.core.methods import default_methods
+
+    scene = config["scenes"][name]
+    if scene.get("methods"):
+        return list(scene["methods"])
+    if config.get("methods"):
+        return list(config["methods"])
+    return default_methods(scores or scene_protocol(name, scene).scores)
+
+
 def scene_protocol(name: str, scene: dict):
     """The evaluation protocol (``eve3d.evaluate.Protocol``) of the workflow scene ``name``:
     its ``protocol`` key, else the default of its dataset format when any of that protocol's

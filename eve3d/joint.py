@@ -108,6 +108,18 @@ class PriorState:
         """D̂_i (learnable) or D*_i (fixed)."""
         return torch.exp(self.log_depth[i]) if self.learnable else self.star.depth[i]
 
+    @staticmethod
+    def sized(fine: torch.Tensor, view: View) -> torch.Tensor:
+        """A map (H, W, ...) of view ``view.index`` at the training size, at ``view``'s size:
+        itself, or on a coarse step (``train.coarse_until``) its nearest pixels, so that a
+        depth is never blended across an edge and a confidence stays a mask."""
+        h, w = view.image.shape[:2]
+        if fine.shape[:2] == (h, w):
+            return fine
+        rows = ((torch.arange(h, device=fine.device) + 0.5) * (fine.shape[0] / h)).long()
+        cols = ((torch.arange(w, device=fine.device) + 0.5) * (fine.shape[1] / w)).long()
+        return fine[rows][:, cols]
+
     def trusted(self, i: int) -> torch.Tensor:
         """D_prior,i where M^c_i trusts it, 0 elsewhere: how a neighbour's prior enters the
         LBA, so that a pixel the stereo never measured, or the check refuted, confirms nothing."""
@@ -145,8 +157,8 @@ def on_prior_surface(model: GaussianModel, view: View, priors: PriorState, margi
     u, v = torch.floor(uv).long().unbind(-1)
     inside = (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
     u, v = u.clamp(0, cam.width - 1), v.clamp(0, cam.height - 1)
-    depth = priors.depth(view.index)[v, u]
-    return inside & priors.confidence[view.index][v, u] & ((z - depth).abs() <= margin * depth)
+    depth = priors.sized(priors.depth(view.index), view)[v, u]
+    return inside & priors.sized(priors.confidence[view.index], view)[v, u] & ((z - depth).abs() <= margin * depth)
 
 
 def loss_terms(trainer: Trainer, settings: JointSettings, neighbours: list[list[int]], priors: PriorState | None = None,
@@ -177,7 +189,8 @@ def loss_terms(trainer: Trainer, settings: JointSettings, neighbours: list[list[
                                                                        covered)
         candidates = [j for j in neighbours[view.index] if j in train_set]
         if step >= settings.mv_from and candidates and (settings.geo_weight or settings.ncc_weight):
-            nbr = trainer.views[candidates[int(torch.randint(len(candidates), (1,), generator=trainer.generator))]]
+            pick = candidates[int(torch.randint(len(candidates), (1,), generator=trainer.generator))]
+            nbr = trainer.views.at(pick, step)
             out_n = trainer.render(nbr, step, geometry_only=True)  # only its depth is used
             geo, ncc, _ = multiview_terms(view, [nbr], out.depth, out.normal, out.distance, [out_n.depth], covered,
                                           settings, trainer.generator, with_ncc=bool(settings.ncc_weight))
@@ -185,8 +198,8 @@ def loss_terms(trainer: Trainer, settings: JointSettings, neighbours: list[list[
             if ncc is not None:
                 t["mv_ncc"] = settings.ncc_weight * ncc[0][0] / ncc[1][0]
         if priors is not None and step >= settings.prior_from:
-            t.update(prior_terms(step, view, out, covered, [trainer.views[j] for j in candidates], priors, settings,
-                                 trainer.generator))
+            nbrs = [trainer.views.at(j, step) for j in candidates]
+            t.update(prior_terms(step, view, out, covered, nbrs, priors, settings, trainer.generator))
         return t
 
     return terms
@@ -199,36 +212,42 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     consistent initialisation). From T_joint: L_prior towards D̂_i, L_pull of D̂_i towards
     the rendered depth where M^c is not confident, and the LBA of the rendered depth
     against the neighbours' D̂_n (no neighbour is rendered); gradients reach the
-    Gaussians and every D̂ involved. Each visit first re-checks M^c_i
-    (``PriorState.update_confidence``) when the LBA is on."""
+    Gaussians and every D̂ involved. Each visit at the training size first re-checks
+    M^c_i (``PriorState.update_confidence``) when the LBA is on. A coarse step's ``view`` and
+    ``neighbours`` are smaller: every map is taken at their size (``PriorState.sized``)."""
     t: dict[str, torch.Tensor] = {}
     i, joint = view.index, step >= settings.joint_from
     neighbours = [n for n in neighbours if n.index not in priors.blank][:settings.neighbours]
-    if settings.lba_weight:  # the multi-view check is the LBA's: without it M^c stays the stereo's
+
+    def at(fine: torch.Tensor, v: View = view) -> torch.Tensor:
+        return priors.sized(fine, v)
+
+    coarse = view.image.shape[:2] != priors.confidence[i].shape
+    if settings.lba_weight and not coarse:  # the multi-view check is the LBA's: without it M^c stays the stereo's
         priors.update_confidence(i, neighbours)
-    confident = priors.confidence[i] & covered
-    target = priors.depth(i) if joint else priors.star.depth[i]
+    confident = at(priors.confidence[i]) & covered
+    target = at(priors.depth(i) if joint else priors.star.depth[i])
     if settings.prior_weight and confident.any():
         target_normal = (depth_to_normal(target, view.cam, settings.prior_normal_span) if joint
-                         else priors.star.normal[i])
+                         else at(priors.star.normal[i]))
         normal = torch.nn.functional.normalize(out.normal, dim=-1)
         depth_term = ((target - out.depth).abs() * confident).sum() / confident.sum()
         on_normal = confident & (target_normal.norm(dim=-1) > 0)
         normal_term = ((1 - (target_normal * normal).sum(-1)) * on_normal).sum() / on_normal.sum().clamp_min(1)
         t["prior"] = settings.prior_weight * (depth_term + settings.prior_normal_weight * normal_term)
-    unconfident = ~priors.confidence[i] & covered
+    unconfident = ~at(priors.confidence[i]) & covered
     if priors.learnable and joint and settings.pull_weight and unconfident.any():
-        pull = (priors.depth(i) - out.depth.detach()).abs() * unconfident
+        pull = (at(priors.depth(i)) - out.depth.detach()).abs() * unconfident
         t["pull"] = settings.pull_weight * pull.sum() / unconfident.sum()
     if settings.lba_weight and neighbours and (joint or priors.learnable):
         if joint:  # the rendered depth and plane against the neighbours' priors
             depth, normal, distance, mask = out.depth, out.normal, out.distance, covered
         else:  # the confident priors among themselves
-            depth = priors.depth(i)
+            depth = at(priors.depth(i))
             normal, distance = prior_plane(depth, view, settings.prior_normal_span)
-            mask = priors.confidence[i] & (normal.norm(dim=-1) > 0)
+            mask = at(priors.confidence[i]) & (normal.norm(dim=-1) > 0)
         geo, ncc, _ = multiview_terms(view, neighbours, depth, normal, distance,
-                                      [priors.trusted(n.index) for n in neighbours], mask, settings, generator)
+                                      [at(priors.trusted(n.index), n) for n in neighbours], mask, settings, generator)
         total = geo.sum() + (0.0 if ncc is None else (ncc[0] / ncc[1]).sum())
         t["lba"] = settings.lba_weight * total / len(neighbours)
     return t

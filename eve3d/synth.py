@@ -415,9 +415,9 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
             if surface_samples:
                 pts, pviews = surface_points(mesh, cams, caster, surface_samples, rng)
                 colors = point_colors(parts, caster, cams, pts, pviews, seed)
-            else:
+            else:  # one thread: a benchmark's sparse points come out the same each run
                 pts, colors, pviews = triangulate_known_poses(cams, tmp / "images", tmp / "sfm",
-                                                              SfmSettings(matcher=matcher, seed=seed))
+                                                              SfmSettings(matcher=matcher, seed=seed, threads=1))
         scene = Scene(root=out, cameras=cams, points=pts, point_colors=colors, point_views=pviews)
         write_colmap(scene, tmp / ("gt/sparse/0" if images_only else "sparse/0"))
         (tmp / "gt").mkdir(exist_ok=True)

@@ -64,12 +64,13 @@ def write_config(tmp_path: Path, **overrides) -> Path:
     """A workflow config in ``tmp_path``: the cpu preset, results under ``tmp_path``, the
     oracle on a 12-view 160×120 generated object (``tiny``), keys overridden by ``overrides``.
     Tiny scenes start from exact surface samples (``TINY_START``) and are scored on
-    ``EVAL_SAMPLES`` samples a side."""
+    ``EVAL_SAMPLES`` samples a side. A key overridden by None is left out (the default's)."""
     config = {"preset": "cpu", "results": str(tmp_path / "results"), "methods": ["oracle"],
               "scenes": {"tiny": {"synthetic": {"kind": "object", "views": 12, "width": 160, "height": 120}}},
               "synthetic": {"surface_samples": TINY_START},
               "mesh": {"coarsen": 8}, "evaluate": {"samples": EVAL_SAMPLES}}
     config.update(overrides)
+    config = {key: value for key, value in config.items() if value is not None}
     path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(config))
     return path

@@ -12,8 +12,8 @@ from tests.helpers import REPO
 
 
 def test_defaults_live_once_in_the_settings():
-    """The schema holds no leaf default but the workflow's own keys (preset, results, methods,
-    training_jobs: no settings class reads them), and a resolved
+    """The schema holds no leaf default but the workflow's own keys (preset, results,
+    training_jobs: no settings class reads them; methods' default depends on the protocol), and a resolved
     config carries every section whole, with the settings classes' defaults."""
     from eve3d.config import resolve_config
     from eve3d.core.settings_stereo import SGM_MODES, SgbmSettings
@@ -30,8 +30,7 @@ def test_defaults_live_once_in_the_settings():
             for value in node:
                 yield from leaf_defaults(value, path)
 
-    assert sorted(leaf_defaults(schema)) == [".properties.methods", ".properties.preset", ".properties.results",
-                                          ".properties.training_jobs"]
+    assert sorted(leaf_defaults(schema)) == [".properties.preset", ".properties.results", ".properties.training_jobs"]
     config = resolve_config({"scenes": {"a": {"synthetic": {"kind": "object", "views": 8}}},
                              "stereo": {"sgm_mode": "3way"}})
     for section, cls in SECTIONS.items():
@@ -64,3 +63,20 @@ def test_protocol_defaults_and_requirements_are_named(tmp_path, object_dataset):
         scene_protocol("d", {"path": str(object_dataset), "protocol": "tnt"})
     with pytest.raises(Eve3dError, match="has no poses, and SfM would pose it in a frame of its own"):
         scene_protocol("e", {"path": str(object_dataset / "images"), "gt_mesh": "gt.ply"})
+
+
+def test_photos_train_eve3d_alone_unless_the_config_names_methods(object_dataset):
+    """A scene scored on held-out photos trains eve3d alone by default, one with ground truth
+    every method; methods named by the config or the scene win."""
+    from eve3d.config import named_methods, resolve_config
+
+    scenes = {"photos": {"path": str(object_dataset)}, "generated": {"synthetic": {"kind": "object"}},
+              "with-gt": {"path": str(object_dataset), "gt_mesh": "gt.ply"}}
+    config = resolve_config({"scenes": scenes})
+    assert named_methods(config, "photos") == ["eve3d"]
+    assert named_methods(config, "generated") == named_methods(config, "with-gt") == [
+        "oracle", "stereo-tsdf", "pgsr", "eve3d"]
+    config = resolve_config({"methods": ["pgsr", "eve3d"], "scenes": {**scenes, "own": {
+        "path": str(object_dataset), "methods": ["pgsr"]}}})
+    assert named_methods(config, "photos") == named_methods(config, "generated") == ["pgsr", "eve3d"]
+    assert named_methods(config, "own") == ["pgsr"]

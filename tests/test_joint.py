@@ -430,3 +430,34 @@ def test_pgsr_on_a_plane_has_no_depth_bias(plane_dataset, tmp_path):
     balls = [train_plane(plane_dataset, tmp_path / f"balls{seed}", init_thickness=1.0, seed=seed)["median_signed_error"]
              for seed in range(4)]
     assert max(balls) < -0.001, balls
+
+
+def test_coarse_steps_take_every_term_and_prior_at_the_coarse_size(tiny_scene, tmp_path, noisy_priors):
+    """Coarse to fine with every Eve3D term on from the start (L_prior towards D̂, L_pull, the
+    LBA, PGSR's multi-view terms): the first 10 steps render and fit each view, its neighbour
+    and its priors at half the training size, D̂ learns there (at the pixels it is sampled at),
+    and M^c is re-checked only at the training size; the priors written are at that size."""
+    from eve3d.joint import PriorState
+
+    fine = torch.arange(48 * 64, dtype=torch.float32).reshape(48, 64)
+    half = type("V", (), {"image": torch.zeros(24, 32, 3)})()
+    assert torch.equal(PriorState.sized(fine, half), fine[1::2, 1::2])  # the nearest pixel, never a blend
+    s = _eve3d(iterations=20, prior_from=0, joint_from=0, dn_from=0, mv_from=0, coarse_until=10, coarse_scale=0.5)
+    run = setup_joint(tiny_scene, tmp_path, s, noisy_priors)
+    trainer = run.trainer
+    shapes, checked = [], []
+    update = run.priors.update_confidence
+    run.priors.update_confidence = lambda i, nbrs: (checked.append(trainer.state.step), update(i, nbrs))
+
+    def loss(step, view, out):
+        shapes.append(tuple(out.rgb.shape[:2]))
+        return run.loss(step, view, out)
+
+    start = _log_depths(trainer)
+    trainer.run(loss)
+    h, w = trainer.views[0].image.shape[:2]
+    assert shapes == [(h // 2, w // 2)] * 10 + [(h, w)] * 10
+    assert checked and min(checked) >= 10
+    moved = _log_depths(trainer)
+    assert sum(not torch.equal(start[k], v) for k, v in moved.items()) >= 6
+    assert all(v.shape == (h, w) for v in moved.values())

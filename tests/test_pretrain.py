@@ -60,3 +60,31 @@ def test_a_short_pretrain_reinitialises_simplifies_and_writes_its_outputs(tiny_s
     assert record["held_out"]["views"] == 1 and record["train"]["views"] == 7 and record["held_out"]["psnr"] > 5
     assert sorted(p.name for p in (tmp_path / "previews").iterdir()) == ["000.depth.png", "000.normal.png", "000.rgb.png"]
     assert not (tmp_path / "checkpoint.pt").exists()
+
+
+def test_coarse_steps_see_every_view_at_the_coarse_size_then_at_the_training_size(tiny_scene, tmp_path):
+    """Coarse to fine: the steps before ``coarse_until`` render and fit each view at half the
+    training size (the photo read at that size), the later ones at the training size; the
+    model fits the held-out view about as well as one trained at full size throughout."""
+    from eve3d.pretrain import setup_pretrain
+
+    short = DensifySettings(refine_start=10, refine_every=10, refine_stop=40, reset_every=0)
+    scores = {}
+    for until in (0, 30):
+        s = PretrainSettings(iterations=60, sh_degree=0, checkpoint_every=0, previews=0, reinit_at=(), simplify_at=(),
+                             coarse_until=until, coarse_scale=0.5, densify=short)
+        run = setup_pretrain(tiny_scene, tmp_path / str(until), s)
+        sizes = []
+
+        def loss(step, view, out, run=run, sizes=sizes):
+            assert out.rgb.shape == view.image.shape  # the photo at the size rendered
+            sizes.append(tuple(view.image.shape[:2]))
+            return run.loss(step, view, out)
+
+        run.trainer.run(loss, run.events)
+        full = tuple(run.trainer.views[0].image.shape[:2])
+        half = (round(full[0] / 2), round(full[1] / 2))
+        assert sizes == [half if until else full] * until + [full] * (60 - until)
+        scores[until] = run.trainer.finish(tmp_path / str(until), lambda sc: sc, "depth_expected")["held_out"]["psnr"]
+    print(f"held-out PSNR: full size {scores[0]:.2f} dB, coarse to fine {scores[30]:.2f} dB")
+    assert scores[30] > scores[0] - 1.0

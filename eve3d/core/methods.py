@@ -98,6 +98,21 @@ BUILTIN_VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 
+DEFAULT_METHODS = ("oracle", "stereo-tsdf", "pgsr", "eve3d")
+"""A scene's methods when the config names none and ground truth scores the mesh: the
+ceiling, the priors fused as they are, the baseline and ours."""
+PHOTO_METHODS = ("eve3d",)
+"""A scene's methods when the config names none and only held-out photos score it (the
+``nvs`` protocol: a user's photos): the one mesh a user wants, without the baseline's
+training beside it (``methods: [pgsr, eve3d]`` adds it)."""
+
+
+def default_methods(scores: str) -> list[str]:
+    """The methods of a scene whose config names none, by what its protocol scores
+    (``eve3d.evaluate.Protocol.scores``: ``mesh`` or ``model``)."""
+    return list(PHOTO_METHODS if scores == "model" else DEFAULT_METHODS)
+
+
 def uses_priors(settings: Mapping[str, Any]) -> bool:
     """Whether joint settings (all of them, or a method's changes) read the stereo priors."""
     return settings.get("priors", "none") != "none" or settings.get("init") == "priors"

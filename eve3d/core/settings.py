@@ -83,10 +83,12 @@ class SfmSettings(Checked):
     and in the generator's triangulation. Pairs that do not overlap spend them all, and around
     an object most pairs do not: the check is most of exhaustive matching's time. A pair with
     30 % inliers is still verified 99 % of the time (docs/results.md, "Training", on SfM)."""
-    threads: int = setting(1, nonzero=True)
-    """Threads for extraction, matching and mapping. 1 makes SfM bit-reproducible (pycolmap's
-    multi-threaded matching and mapping are not: the cameras move between runs); -1 uses every
-    core, faster (docs/results.md, "Training", on SfM)."""
+    threads: int = setting(-1, nonzero=True)
+    """Threads for extraction, matching and mapping: -1 = every core the job has (the
+    workflow's ``OMP_NUM_THREADS``, else the machine's). 1 makes SfM bit-reproducible, about
+    twice as slow on 2 cores (pycolmap's multi-threaded matching and mapping are not: the
+    cameras move between runs by up to 1 % of the scene; docs/results.md, "Training", on SfM):
+    the generator and the tests that compare two runs use it."""
 
 
 # --------------------------------------------------------------------------- training
@@ -203,6 +205,12 @@ class TrainSettings(RenderSettings):
     """Raise the active SH degree by one every this many steps."""
     ssim_weight: float = setting(0.2, ge=0, le=1)
     """L_rgb = (1 − w)·L1 + w·(1 − SSIM)."""
+    coarse_until: int = setting(0, ge=0)
+    """Coarse to fine, as fast 3DGS trainers do: the steps before this one see every view at
+    ``coarse_scale`` of the training size (the priors too, by their nearest pixel), each for
+    about ``coarse_scale``² of a step's time; 0 = off (docs/results.md, "Coarse to fine")."""
+    coarse_scale: float = setting(0.5, gt=0, le=1)
+    """The coarse steps' image size, a factor of the training size."""
     init_thickness: float = setting(0.1, gt=0, le=1)
     """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
     are discs in the plane of their 8 nearest points, this thin along its normal (a

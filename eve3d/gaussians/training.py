@@ -37,7 +37,7 @@ from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import RenderOutput, render_model
 from eve3d.gaussians.train_state import Checkpoint, TrainState
 from eve3d.gaussians.view_report import view_metrics, write_previews
-from eve3d.gaussians.views import View, Views, pick_device
+from eve3d.gaussians.views import View, Views, coarse_views, pick_device
 
 LossTerms = Callable[[int, View, RenderOutput], dict[str, torch.Tensor]]
 """``(step, view, rendered view) -> weighted loss terms``, whose sum a step minimises."""
@@ -90,6 +90,7 @@ class Trainer:
         self.device = pick_device(settings.device)
         with phase("read photos"):
             self.views = Views.load(scene, settings, settings.holdout, self.device, tone)
+            self.views.coarse = coarse_views(scene, settings, self.device, tone)
         self.state = TrainState(settings, scene.radius, len(self.views), self.device)
         self.checkpoint = Checkpoint(work_dir, settings, scene, name)
 
@@ -134,7 +135,7 @@ class Trainer:
         if not st.order:
             perm = torch.randperm(len(self.views.train_ids), generator=st.generator).tolist()
             st.order = [self.views.train_ids[i] for i in perm]
-        return self.views[st.order.pop()]
+        return self.views.at(st.order.pop(), st.step)
 
     def run(self, loss_terms: LossTerms, events: Callable[[int], None] | None = None,
             until: int | None = None) -> None:

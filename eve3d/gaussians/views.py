@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -17,7 +17,7 @@ from tqdm import tqdm
 from eve3d.core.errors import Eve3dError
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Scene
-from eve3d.core.settings import RenderSettings
+from eve3d.core.settings import RenderSettings, TrainSettings
 from eve3d.gaussians.render.projection import CameraTensors
 
 
@@ -80,6 +80,12 @@ class Views:
     items: list[View]
     train_ids: list[int]
     test_ids: list[int]
+    coarse: tuple[int, Views] | None = None
+    """(until, views): coarse to fine, the smaller views the steps before ``until`` train on."""
+
+    def at(self, i: int, step: int) -> View:
+        """View ``i`` as step ``step`` trains on it."""
+        return (self.coarse[1] if self.coarse and step < self.coarse[0] else self)[i]
 
     @classmethod
     def load(cls, scene: Scene, rendering: RenderSettings, holdout: int, device: torch.device,
@@ -110,3 +116,16 @@ class Views:
     def images(self) -> list[torch.Tensor]:
         """The photos at the training resolution."""
         return [v.image for v in self.items]
+
+
+def coarse_views(scene: Scene, settings: TrainSettings, device: torch.device,
+                 tone: np.ndarray | None = None) -> tuple[int, Views] | None:
+    """Coarse to fine (:attr:`Views.coarse`; None when ``settings.coarse_until`` is 0): every
+    view at ``coarse_scale`` of the training size, its photo read at that size (from the
+    pyramid). Densification's 2D gradients are in NDC units, so its thresholds hold at either size."""
+    if not settings.coarse_until:
+        return None
+    coarse = replace(settings, resolution=settings.resolution * settings.coarse_scale,
+                     max_side=round(settings.max_side * settings.coarse_scale))
+    return settings.coarse_until, Views.load(scene, coarse, settings.holdout, device, tone)
+

@@ -17,6 +17,7 @@ from eve3d.core.fileio import read_image
 from eve3d.core.io import load_scene
 from eve3d.core.io.colmap import write_colmap
 from eve3d.core.layout import EVALUATION, HELD_OUT_DIR, MESH_VIEWS_DIR, PRETRAIN, RECORD, TRAINING, Layout
+from eve3d.core.methods import REGISTRY
 from eve3d.synth import generate
 from eve3d.tools.profile import log_jobs, read_run
 from eve3d.tools.standin import dtu_scale_mat, write_dtu_layout
@@ -133,7 +134,7 @@ def test_a_capture_config_from_the_default_trains_at_the_preset_and_the_demo_at_
     assert r.returncode == 0, r.stderr[-3000:]
     jobs = training_job_configs(r.stdout + r.stderr)
     preset = resolve_config({"preset": "cpu", "scenes": {"mine": {"path": str(photos.parent)}}})
-    assert {stage for stage, scene in jobs if scene == "mine"} == {"pretrain", "joint pgsr", "joint eve3d"}
+    assert {stage for stage, scene in jobs if scene == "mine"} == {"pretrain", "joint eve3d"}  # photos: eve3d alone
     for (stage, scene), job in jobs.items():
         section = stage.split()[0]
         if scene == "mine":
@@ -141,7 +142,7 @@ def test_a_capture_config_from_the_default_trains_at_the_preset_and_the_demo_at_
             assert {k: job[section][k] for k in preset[section]} == preset[section], stage
             assert job["train"] == preset["train"], stage
     threads = {job.title: job.threads for job in log_jobs((r.stdout + r.stderr).splitlines())}
-    assert threads["joint mine eve3d"] == threads["joint mine pgsr"] == 2  # every core: one training job at a time
+    assert threads["joint mine eve3d"] == 2  # every core: one training job at a time
 
     r = snakemake("-n", "-p", "-c2", "--configfile", str(REPO / "config/demo.yaml"), "--config",
                   f"results={tmp_path / 'demo'}")
@@ -395,6 +396,10 @@ def test_scene_without_ground_truth_is_scored_on_held_out_views(tmp_path, object
     assert r.returncode == 0, out[-3000:]
     assert f"--protocol nvs --model {tmp_path}/results/mine/pgsr/point_cloud.ply" in out
     assert f"--out {tmp_path}/results/mine/pgsr/mesh.ply" in out and "mine/oracle" not in out
+    cfg = write_config(tmp_path, methods=None, scenes={"mine": {"path": str(object_dataset)}})
+    r = snakemake("-n", "-p", "--configfile", str(cfg), "--replace-workflow-config")
+    out = r.stdout + r.stderr
+    assert r.returncode == 0 and "mine/eve3d/mesh.ply" in out and "mine/pgsr" not in out, out[-3000:]
     cfg = write_config(tmp_path, scenes={"mine": {"path": str(object_dataset), "protocol": "synthetic"}})
     r = snakemake("-n", "--configfile", str(cfg), "--replace-workflow-config")
     assert r.returncode != 0
@@ -526,14 +531,13 @@ def test_killed_training_reruns_to_the_same_result(tmp_path):
 
 @pytest.mark.slow
 def test_photos_and_their_path_run_to_meshes_and_held_out_scores(object_photos, tmp_path):
-    """An images-only scene with no other key: SfM, the default nvs protocol, meshes of every
-    trained method with their shaded views, held-out views side by side with the photos."""
+    """An images-only scene with no other key and no methods named: SfM, the default nvs
+    protocol, eve3d alone meshed with its shaded views, held-out views side by side with the
+    photos."""
     data = shutil.copytree(object_photos, tmp_path / "mine")
     short = {"refine_start": 5, "refine_every": 5, "refine_stop": 25, "reset_every": 0}
-    # pgsr left out: eve3d is pgsr with the priors and an opacity loss; pgsr's runs end to end
-    # are tests/workflow/test_workflow.py's
-    cfg = write_config(tmp_path, methods=["oracle", "stereo-tsdf", "eve3d"],
-                       scenes={"mine": {"path": str(data)}}, train={"max_side": 240},  # trained at 240×180
+    cfg = write_config(tmp_path, methods=None, scenes={"mine": {"path": str(data)}},
+                       train={"max_side": 240},  # trained at 240×180
                        pretrain={"iterations": 80, "reinit_at": [], "simplify_at": [60], "densify": short},
                        joint={"iterations": 40, "dn_from": 20, "mv_from": 20, "prior_from": 5, "joint_from": 20,
                               "init_prior_points": 3000, "densify": short})
@@ -551,7 +555,7 @@ def test_photos_and_their_path_run_to_meshes_and_held_out_scores(object_photos, 
     assert (shaded < 250).any(axis=-1).mean() > 0.02  # the mesh covers part of the picture
     pairs = sorted(p.stem for p in (layout.method("mine", "eve3d") / HELD_OUT_DIR).glob("*.png"))
     assert pairs == held
-    assert not layout.method("mine", "oracle").exists() and not layout.method("mine", "stereo-tsdf").exists()
+    assert sorted(p.name for p in layout.scene("mine").iterdir() if p.name in REGISTRY) == ["eve3d"]
     assert json.loads(layout.train_metrics("mine", PRETRAIN).read_text())["held_out"]["views"] == 2
     assert (layout.sfm("mine") / "images_2").is_dir()
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 REPO = str(Path(workflow.basedir).parent)  # workflow/Snakefile: the checkout whose package the jobs run
 sys.path.insert(0, REPO)
-from eve3d.config import (has_gt_mesh, method_settings, resolve_config, scene_protocol, scene_sections, scene_value,
-                          stage_settings)
+from eve3d.config import (has_gt_mesh, method_settings, named_methods, resolve_config, scene_protocol, scene_sections,
+                          scene_value, stage_settings)
 from eve3d.core.errors import Eve3dError
 from eve3d.core.io.loader import has_poses
 from eve3d.core.layout import PRETRAIN, Layout
@@ -39,16 +39,17 @@ TRAINED = [name for name, m in METHOD.items() if m.trains]  # methods the joint 
 
 
 def scene_methods(scene):
-    """A scene's methods. A protocol that scores renderings (nvs) keeps the trained ones;
-    `oracle` (the exact depth of a GT mesh) runs only where there is a GT mesh."""
+    """A scene's methods: its own, else the config's, else the default of what its protocol
+    scores (eve3d.config.named_methods). A protocol that scores renderings (nvs) keeps
+    the trained ones; `oracle` (the exact depth of a GT mesh) runs only where there is a GT mesh."""
     sc = config["scenes"][scene]
-    names = sc.get("methods", config["methods"])
+    names = named_methods(config, scene, PROTOCOL[scene].scores)
     if PROTOCOL[scene].scores == "model":
         names = [m for m in names if METHOD[m].trains]
     return [m for m in names if METHOD[m].fuses != "oracle" or has_gt_mesh(sc)]
 
 
-for _where, _names in [("methods", config["methods"])] + [
+for _where, _names in [("methods", config.get("methods") or [])] + [
         (f"scenes.{s}.methods", config["scenes"][s].get("methods", [])) for s in SCENES]:
     _unknown = [m for m in _names if m not in METHOD]
     if _unknown:

@@ -38,4 +38,4 @@ rule sfm:
     conda:
         CONDA_ENV
     shell:
-        "{EVE3D} sfm {input} {output} --config {params.config} > {log} 2>&1"
+        "OMP_NUM_THREADS={threads} {EVE3D} sfm {input} {output} --config {params.config} > {log} 2>&1"

@@ -301,6 +301,15 @@ def write_colmap(scene: Scene, out_dir: Path, binary: bool = True) -> None:
     (rec.write_binary if binary else rec.write_text)(str(out_dir))
 
 
+def sfm_threads(settings: SfmSettings) -> int:
+    """``settings.threads``, with -1 (every core) read as the job's share where the workflow
+    gives one (``OMP_NUM_THREADS``): pycolmap's -1 is every core of the machine."""
+    import os
+
+    given = os.environ.get("OMP_NUM_THREADS", "")
+    return int(given) if settings.threads == -1 and given.isdigit() and int(given) > 0 else settings.threads
+
+
 def extraction_options(settings: SfmSettings):
     """SIFT's options: images scaled to at most ``settings.max_image_size``, on
     ``settings.threads`` threads."""
@@ -308,7 +317,7 @@ def extraction_options(settings: SfmSettings):
 
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = settings.max_image_size
-    extraction.num_threads = settings.threads
+    extraction.num_threads = sfm_threads(settings)
     return extraction
 
 
@@ -317,7 +326,7 @@ def mapping_options(settings: SfmSettings):
     pycolmap = import_pycolmap()
 
     options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = settings.threads
+    options.num_threads = sfm_threads(settings)
     options.random_seed = settings.seed
     return options
 
@@ -329,7 +338,7 @@ def match_features(db_path: Path, settings: SfmSettings) -> None:
     pycolmap = import_pycolmap()
 
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = settings.threads
+    matching.num_threads = sfm_threads(settings)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.max_num_trials = settings.ransac_trials
     match = pycolmap.match_exhaustive if settings.matcher == "exhaustive" else pycolmap.match_sequential

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 
+from eve3d.config import named_methods
 from eve3d.tools.bench.stereo import agreement_lines, prior_accuracy, prior_lines
 
 
@@ -32,7 +33,7 @@ def methods_report(config: dict) -> dict:
     known = methods(config.get("variants"))
     rows, shared, priors = [], {}, []
     for scene, sc in config["scenes"].items():
-        for name in sc.get("methods", config["methods"]):
+        for name in named_methods(config, scene):
             path = layout.metrics(scene, name)
             if not path.is_file():
                 continue
@@ -50,7 +51,7 @@ def methods_report(config: dict) -> dict:
             star = layout.priors(scene, backend)
             if star.is_dir():
                 priors.append({**prior_accuracy(star, oracle, scene), "priors": f"D* ({backend})"})
-            for name in sc.get("methods", config["methods"]):
+            for name in named_methods(config, scene):
                 for maps, what in ((layout.learned_priors(scene, name), "D̂"), (layout.depth(scene, name), "D")):
                     if maps.is_dir():
                         priors.append({**prior_accuracy(maps, oracle, scene), "priors": f"{what} of {name}"})
@@ -110,7 +111,7 @@ def real_report(config: dict) -> dict:
         if pre.is_file():
             held[PRETRAIN] = json.loads(pre.read_text()).get("held_out", {})
         meshes = {}
-        for method in sc.get("methods", config["methods"]):
+        for method in named_methods(config, name):
             if layout.metrics(name, method).is_file():
                 m = json.loads(layout.metrics(name, method).read_text())
                 held[method] = {k: m.get(k) for k in ("psnr", "ssim", "views")}
