@@ -442,7 +442,9 @@ def test_coarse_steps_take_every_term_and_prior_at_the_coarse_size(tiny_scene, t
     fine = torch.arange(48 * 64, dtype=torch.float32).reshape(48, 64)
     half = type("V", (), {"image": torch.zeros(24, 32, 3)})()
     assert torch.equal(PriorState.sized(fine, half), fine[1::2, 1::2])  # the nearest pixel, never a blend
-    s = _eve3d(iterations=20, prior_from=0, joint_from=0, dn_from=0, mv_from=0, coarse_until=10, coarse_scale=0.5)
+    cam = tiny_scene.cameras[0]
+    s = _eve3d(iterations=20, prior_from=0, joint_from=0, dn_from=0, mv_from=0, coarse_until=0.5,
+               coarse_side=max(cam.width, cam.height) // 2)
     run = setup_joint(tiny_scene, tmp_path, s, noisy_priors)
     trainer = run.trainer
     shapes, checked = [], []

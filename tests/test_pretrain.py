@@ -63,17 +63,21 @@ def test_a_short_pretrain_reinitialises_simplifies_and_writes_its_outputs(tiny_s
 
 
 def test_coarse_steps_see_every_view_at_the_coarse_size_then_at_the_training_size(tiny_scene, tmp_path):
-    """Coarse to fine: the steps before ``coarse_until`` render and fit each view at half the
-    training size (the photo read at that size), the later ones at the training size; the
-    model fits the held-out view about as well as one trained at full size throughout."""
+    """Coarse to fine: the first half of the steps (``coarse_until``) render and fit each view
+    at most ``coarse_side`` px a side (the photo read at that size), the later ones at the
+    training size; the model fits the held-out view about as well as one trained at full size
+    throughout. Views no larger than ``coarse_side`` have no coarse steps."""
     from eve3d.pretrain import setup_pretrain
 
     short = DensifySettings(refine_start=10, refine_every=10, refine_stop=40, reset_every=0)
+    cam = tiny_scene.cameras[0]
+    full, half = (cam.height, cam.width), (cam.height // 2, cam.width // 2)
     scores = {}
-    for until in (0, 30):
+    for until, side, seen in ((0, 256, [full] * 60), (0.5, max(half), [half] * 30 + [full] * 30),
+                              (0.5, max(full), [full] * 60)):
         s = PretrainSettings(iterations=60, sh_degree=0, checkpoint_every=0, previews=0, reinit_at=(), simplify_at=(),
-                             coarse_until=until, coarse_scale=0.5, densify=short)
-        run = setup_pretrain(tiny_scene, tmp_path / str(until), s)
+                             coarse_until=until, coarse_side=side, densify=short)
+        run = setup_pretrain(tiny_scene, tmp_path / f"{until}-{side}", s)
         sizes = []
 
         def loss(step, view, out, run=run, sizes=sizes):
@@ -82,9 +86,8 @@ def test_coarse_steps_see_every_view_at_the_coarse_size_then_at_the_training_siz
             return run.loss(step, view, out)
 
         run.trainer.run(loss, run.events)
-        full = tuple(run.trainer.views[0].image.shape[:2])
-        half = (round(full[0] / 2), round(full[1] / 2))
-        assert sizes == [half if until else full] * until + [full] * (60 - until)
-        scores[until] = run.trainer.finish(tmp_path / str(until), lambda sc: sc, "depth_expected")["held_out"]["psnr"]
-    print(f"held-out PSNR: full size {scores[0]:.2f} dB, coarse to fine {scores[30]:.2f} dB")
-    assert scores[30] > scores[0] - 1.0
+        assert sizes == seen
+        metrics = run.trainer.finish(tmp_path / f"{until}-{side}", lambda sc: sc, "depth_expected")
+        scores[until, side] = metrics["held_out"]["psnr"]
+    print(f"held-out PSNR: full size {scores[0, 256]:.2f} dB, coarse to fine {scores[0.5, max(half)]:.2f} dB")
+    assert scores[0.5, max(half)] > scores[0, 256] - 1.0

@@ -205,12 +205,13 @@ class TrainSettings(RenderSettings):
     """Raise the active SH degree by one every this many steps."""
     ssim_weight: float = setting(0.2, ge=0, le=1)
     """L_rgb = (1 − w)·L1 + w·(1 − SSIM)."""
-    coarse_until: int = setting(0, ge=0)
-    """Coarse to fine, as fast 3DGS trainers do: the steps before this one see every view at
-    ``coarse_scale`` of the training size (the priors too, by their nearest pixel), each for
-    about ``coarse_scale``² of a step's time; 0 = off (docs/results.md, "Coarse to fine")."""
-    coarse_scale: float = setting(0.5, gt=0, le=1)
-    """The coarse steps' image size, a factor of the training size."""
+    coarse_until: float = setting(0.0, ge=0, le=1)
+    """Coarse to fine, as fast 3DGS trainers do: this fraction of the steps, the first, see
+    every view at most ``coarse_side`` px on its longest side (the priors too, by their
+    nearest pixel), a step at half the size for about a third of the time. Views trained no
+    larger than that have no coarse steps. 0 = off (docs/results.md, "Coarse to fine")."""
+    coarse_side: int = setting(256, ge=8)
+    """The coarse steps' longest image side in pixels."""
     init_thickness: float = setting(0.1, gt=0, le=1)
     """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
     are discs in the plane of their 8 nearest points, this thin along its normal (a

@@ -120,12 +120,13 @@ class Views:
 
 def coarse_views(scene: Scene, settings: TrainSettings, device: torch.device,
                  tone: np.ndarray | None = None) -> tuple[int, Views] | None:
-    """Coarse to fine (:attr:`Views.coarse`; None when ``settings.coarse_until`` is 0): every
-    view at ``coarse_scale`` of the training size, its photo read at that size (from the
-    pyramid). Densification's 2D gradients are in NDC units, so its thresholds hold at either size."""
-    if not settings.coarse_until:
+    """Coarse to fine (:attr:`Views.coarse`): every view at most ``settings.coarse_side`` px a
+    side, its photo read at that size (from the pyramid); None when ``coarse_until`` is 0 or
+    no view is trained larger. Densification's 2D gradients are in NDC units, so its
+    thresholds hold at either size."""
+    side = settings.coarse_side
+    coarse = replace(settings, max_side=min(settings.max_side, side) if settings.max_side else side)
+    if not settings.coarse_until or all(coarse.scale(c) >= settings.scale(c) for c in scene.cameras):
         return None
-    coarse = replace(settings, resolution=settings.resolution * settings.coarse_scale,
-                     max_side=round(settings.max_side * settings.coarse_scale))
-    return settings.coarse_until, Views.load(scene, coarse, settings.holdout, device, tone)
-
+    until = round(settings.coarse_until * settings.iterations)
+    return until, Views.load(scene, coarse, settings.holdout, device, tone)
