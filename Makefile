@@ -24,7 +24,7 @@ HITNET ?=
 comma := ,
 PRIORS := $(if $(HITNET),--config 'stereo={backend: hitnet$(comma) hitnet: {model: $(abspath $(HITNET))}}')
 
-# The demo's shortcuts (fewer views and steps), merged over config/config.yaml
+# The demo's run: two training jobs side by side, fewer evaluation samples; merged over config/config.yaml
 DEMO := config/demo.yaml
 
 demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print the table, write the report

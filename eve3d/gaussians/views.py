@@ -124,9 +124,11 @@ def coarse_views(scene: Scene, settings: TrainSettings, device: torch.device,
     side, its photo read at that size (from the pyramid); None when ``coarse_until`` is 0 or
     no view is trained larger. Densification's 2D gradients are in NDC units, so its
     thresholds hold at either size."""
+    if not settings.coarse_until:
+        return None
     side = settings.coarse_side
     coarse = replace(settings, max_side=min(settings.max_side, side) if settings.max_side else side)
-    if not settings.coarse_until or all(coarse.scale(c) >= settings.scale(c) for c in scene.cameras):
+    if all(coarse.scale(c) >= settings.scale(c) for c in scene.cameras):
         return None
     until = round(settings.coarse_until * settings.iterations)
     return until, Views.load(scene, coarse, settings.holdout, device, tone)

@@ -116,10 +116,11 @@ def training_job_configs(dry_run: str) -> dict[tuple[str, str], dict]:
 
 
 @pytest.mark.parametrize("replace", [True, False])
-def test_a_capture_config_from_the_default_trains_at_the_preset_and_the_demo_at_its_cuts(tmp_path, replace):
+def test_a_capture_config_from_the_default_and_the_demo_train_at_the_preset(tmp_path, replace):
     """config/config.yaml with its scenes swapped for a folder of photos plans the training at
     the cpu preset as it is, with or without ``--replace-workflow-config`` (without it, it is
-    merged over config/config.yaml); make demo's config/demo.yaml plans its cuts."""
+    merged over config/config.yaml); so does make demo's config/demo.yaml, two training jobs
+    side by side."""
     from eve3d.config import resolve_config
 
     photos = tmp_path / "capture" / "images"
@@ -147,12 +148,13 @@ def test_a_capture_config_from_the_default_trains_at_the_preset_and_the_demo_at_
     r = snakemake("-n", "-p", "-c2", "--configfile", str(REPO / "config/demo.yaml"), "--config",
                   f"results={tmp_path / 'demo'}")
     assert r.returncode == 0, r.stderr[-3000:]
-    demo = yaml.safe_load((REPO / "config/demo.yaml").read_text())
     jobs = training_job_configs(r.stdout + r.stderr)
-    assert jobs["pretrain", "synthetic-object"]["pretrain"]["iterations"] == demo["pretrain"]["iterations"] < \
-        preset["pretrain"]["iterations"]
-    assert jobs["joint eve3d", "synthetic-object"]["joint"]["densify"]["max_gaussians"] == \
-        demo["joint"]["densify"]["max_gaussians"]
+    object_preset = resolve_config({"preset": "cpu", "scenes": {"o": {"synthetic": {"kind": "object"}}}})
+    for (stage, scene), job in jobs.items():  # the preset's schedule, views and Gaussians
+        section = stage.split()[0]
+        assert {k: job[section][k] for k in object_preset[section]} == object_preset[section], stage
+    threads = {job.title: job.threads for job in log_jobs((r.stdout + r.stderr).splitlines())}
+    assert threads["joint synthetic-object pgsr"] == threads["joint synthetic-object eve3d"] == 1  # side by side
 
 
 @pytest.mark.parametrize("cores, training_jobs", [(2, 1), (4, 1), (2, 2), (4, 2)])
