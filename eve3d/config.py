@@ -119,9 +119,9 @@ def named_methods(config: dict, name: str, scores: str | None = None) -> list[st
     from eve3d.core.methods import default_methods
 
     scene = config["scenes"][name]
-    if scene.get("methods"):
+    if scene.get("methods") is not None:
         return list(scene["methods"])
-    if config.get("methods"):
+    if config.get("methods") is not None:
         return list(config["methods"])
     return default_methods(scores or scene_protocol(name, scene).scores)
 

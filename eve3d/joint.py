@@ -109,15 +109,19 @@ class PriorState:
         return torch.exp(self.log_depth[i]) if self.learnable else self.star.depth[i]
 
     @staticmethod
-    def sized(fine: torch.Tensor, view: View) -> torch.Tensor:
+    def sized(fine: torch.Tensor, view: View, step: int | None = None) -> torch.Tensor:
         """A map (H, W, ...) of view ``view.index`` at the training size, at ``view``'s size:
-        itself, or on a coarse step (``train.coarse_until``) its nearest pixels, so that a
-        depth is never blended across an edge and a confidence stays a mask."""
+        itself, or on a coarse step (``train.coarse_until``) one fine pixel of each coarse
+        pixel's block, so that a depth is never blended across an edge and a confidence stays a
+        mask. Which pixel of the block moves with ``step`` along a low-discrepancy sequence
+        (Roberts' R2), so that over the coarse steps every pixel of a learnable D̂ is trained;
+        the block's centre without a step."""
         h, w = view.image.shape[:2]
         if fine.shape[:2] == (h, w):
             return fine
-        rows = ((torch.arange(h, device=fine.device) + 0.5) * (fine.shape[0] / h)).long()
-        cols = ((torch.arange(w, device=fine.device) + 0.5) * (fine.shape[1] / w)).long()
+        dv, du = (0.5, 0.5) if step is None else ((step * 0.7548776662) % 1, (step * 0.5698402910) % 1)
+        rows = ((torch.arange(h, device=fine.device) + dv) * (fine.shape[0] / h)).long()
+        cols = ((torch.arange(w, device=fine.device) + du) * (fine.shape[1] / w)).long()
         return fine[rows][:, cols]
 
     def trusted(self, i: int) -> torch.Tensor:
@@ -212,19 +216,18 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     consistent initialisation). From T_joint: L_prior towards D̂_i, L_pull of D̂_i towards
     the rendered depth where M^c is not confident, and the LBA of the rendered depth
     against the neighbours' D̂_n (no neighbour is rendered); gradients reach the
-    Gaussians and every D̂ involved. Each visit at the training size first re-checks
-    M^c_i (``PriorState.update_confidence``) when the LBA is on. A coarse step's ``view`` and
+    Gaussians and every D̂ involved. Each visit first re-checks M^c_i at the training size
+    (``PriorState.update_confidence``) when the LBA is on. A coarse step's ``view`` and
     ``neighbours`` are smaller: every map is taken at their size (``PriorState.sized``)."""
     t: dict[str, torch.Tensor] = {}
     i, joint = view.index, step >= settings.joint_from
     neighbours = [n for n in neighbours if n.index not in priors.blank][:settings.neighbours]
 
     def at(fine: torch.Tensor, v: View = view) -> torch.Tensor:
-        return priors.sized(fine, v)
+        return priors.sized(fine, v, step)
 
-    coarse = view.image.shape[:2] != priors.confidence[i].shape
-    if settings.lba_weight and not coarse:  # the multi-view check is the LBA's: without it M^c stays the stereo's
-        priors.update_confidence(i, neighbours)
+    if settings.lba_weight:  # the multi-view check is the LBA's: without it M^c stays the stereo's
+        priors.update_confidence(i, [priors.views[n.index] for n in neighbours])  # at the training size
     confident = at(priors.confidence[i]) & covered
     target = at(priors.depth(i) if joint else priors.star.depth[i])
     if settings.prior_weight and confident.any():

@@ -85,7 +85,8 @@ class SfmSettings(Checked):
     30 % inliers is still verified 99 % of the time (docs/results.md, "Training", on SfM)."""
     threads: int = setting(-1, nonzero=True)
     """Threads for extraction, matching and mapping: -1 = every core the job has (the
-    workflow's ``OMP_NUM_THREADS``, else the machine's). 1 makes SfM bit-reproducible, about
+    workflow's ``OMP_NUM_THREADS``, else the machine's: a shell that sets
+    ``OMP_NUM_THREADS`` sets this too). 1 makes SfM bit-reproducible, about
     twice as slow on 2 cores (pycolmap's multi-threaded matching and mapping are not: the
     cameras move between runs by up to 1 % of the scene; docs/results.md, "Training", on SfM):
     the generator and the tests that compare two runs use it."""
@@ -207,9 +208,11 @@ class TrainSettings(RenderSettings):
     """L_rgb = (1 − w)·L1 + w·(1 − SSIM)."""
     coarse_until: float = setting(0.0, ge=0, le=1)
     """Coarse to fine, as fast 3DGS trainers do: this fraction of the steps, the first, see
-    every view at most ``coarse_side`` px on its longest side (the priors too, by their
-    nearest pixel), a step at half the size for about a third of the time. Views trained no
-    larger than that have no coarse steps. 0 = off (docs/results.md, "Coarse to fine")."""
+    every view at most ``coarse_side`` px on its longest side (the priors too, one pixel of
+    each block, a different one each step), a step at half the size for about a third of
+    the time. Views trained no larger than that have no coarse steps. Settings in pixels
+    (``ncc_patch``, ``prior_normal_span``, ``mv_threshold``) keep their values there, so
+    they span more of the scene. 0 = off (docs/results.md, "Coarse to fine")."""
     coarse_side: int = setting(256, ge=8)
     """The coarse steps' longest image side in pixels."""
     init_thickness: float = setting(0.1, gt=0, le=1)

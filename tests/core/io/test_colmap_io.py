@@ -29,3 +29,19 @@ def test_a_model_is_read_where_open3d_is_not_installed(object_scene, tmp_path, m
     back = read_colmap(tmp_path / "sparse", object_scene.root / "images")
     assert [c.name for c in back.cameras] == [c.name for c in object_scene.cameras]
     assert np.array_equal(back.points, object_scene.points)
+
+
+def test_sfm_uses_the_threads_the_job_has(monkeypatch):
+    """-1 (the default) is the workflow's share of the cores (OMP_NUM_THREADS), or pycolmap's
+    every core without one; a count given is kept; each reaches SIFT, matching and mapping."""
+    from eve3d.core.io.colmap import extraction_options, mapping_options, sfm_threads
+    from eve3d.core.settings import SfmSettings
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert sfm_threads(SfmSettings()) == 3 and sfm_threads(SfmSettings(threads=1)) == 1
+    assert extraction_options(SfmSettings()).num_threads == mapping_options(SfmSettings()).num_threads == 3
+    for unset in ("", "many", "0"):
+        monkeypatch.setenv("OMP_NUM_THREADS", unset)
+        assert sfm_threads(SfmSettings()) == -1
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert sfm_threads(SfmSettings()) == -1 and sfm_threads(SfmSettings(threads=2)) == 2
