@@ -228,7 +228,8 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
 
     if settings.lba_weight:  # the multi-view check is the LBA's: without it M^c stays the stereo's
         priors.update_confidence(i, [priors.views[n.index] for n in neighbours])  # at the training size
-    confident = at(priors.confidence[i]) & covered
+    confidence = at(priors.confidence[i])
+    confident = confidence & covered
     target = at(priors.depth(i) if joint else priors.star.depth[i])
     if settings.prior_weight and confident.any():
         target_normal = (depth_to_normal(target, view.cam, settings.prior_normal_span) if joint
@@ -238,7 +239,7 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
         on_normal = confident & (target_normal.norm(dim=-1) > 0)
         normal_term = ((1 - (target_normal * normal).sum(-1)) * on_normal).sum() / on_normal.sum().clamp_min(1)
         t["prior"] = settings.prior_weight * (depth_term + settings.prior_normal_weight * normal_term)
-    unconfident = ~at(priors.confidence[i]) & covered
+    unconfident = ~confidence & covered
     if priors.learnable and joint and settings.pull_weight and unconfident.any():
         pull = (at(priors.depth(i)) - out.depth.detach()).abs() * unconfident
         t["pull"] = settings.pull_weight * pull.sum() / unconfident.sum()
@@ -248,7 +249,7 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
         else:  # the confident priors among themselves
             depth = at(priors.depth(i))
             normal, distance = prior_plane(depth, view, settings.prior_normal_span)
-            mask = at(priors.confidence[i]) & (normal.norm(dim=-1) > 0)
+            mask = confidence & (normal.norm(dim=-1) > 0)
         geo, ncc, _ = multiview_terms(view, neighbours, depth, normal, distance,
                                       [at(priors.trusted(n.index), n) for n in neighbours], mask, settings, generator)
         total = geo.sum() + (0.0 if ncc is None else (ncc[0] / ncc[1]).sum())

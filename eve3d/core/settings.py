@@ -62,6 +62,15 @@ class SyntheticSettings(Checked):
     small for SIFT (the tests' tiny ones); never a benchmark's input."""
 
 
+def job_threads() -> int | None:
+    """The threads the workflow gives a job (``OMP_NUM_THREADS``, a positive count), or None
+    where nothing says (a command run by hand: the library's own default, every core)."""
+    import os
+
+    given = os.environ.get("OMP_NUM_THREADS", "")
+    return int(given) if given.isdigit() and int(given) > 0 else None
+
+
 @dataclass
 class SfmSettings(Checked):
     SECTION: ClassVar[str] = "sfm"

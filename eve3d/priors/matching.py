@@ -25,14 +25,14 @@ def onnx_session(path: Path):
     one, and on the CPU as many threads as ``OMP_NUM_THREADS`` says (the threads the workflow
     gives the job; onnxruntime's default, every core, otherwise). Raises what
     onnxruntime raises for a file it cannot load."""
-    import os
-
     import onnxruntime as ort
 
+    from eve3d.core.settings import job_threads
+
     options = ort.SessionOptions()
-    threads = os.environ.get("OMP_NUM_THREADS", "")
-    if threads.isdigit() and int(threads) > 0:
-        options.intra_op_num_threads = int(threads)
+    threads = job_threads()
+    if threads:
+        options.intra_op_num_threads = threads
     providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in ort.get_available_providers()]
     return ort.InferenceSession(str(path), sess_options=options, providers=providers)
 

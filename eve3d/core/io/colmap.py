@@ -13,7 +13,7 @@ import numpy as np
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.scene import Camera, Scene
-from eve3d.core.settings import SfmSettings
+from eve3d.core.settings import SfmSettings, job_threads
 
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 
@@ -304,10 +304,7 @@ def write_colmap(scene: Scene, out_dir: Path, binary: bool = True) -> None:
 def sfm_threads(settings: SfmSettings) -> int:
     """``settings.threads``, with -1 (every core) read as the job's share where the workflow
     gives one (``OMP_NUM_THREADS``): pycolmap's -1 is every core of the machine."""
-    import os
-
-    given = os.environ.get("OMP_NUM_THREADS", "")
-    return int(given) if settings.threads == -1 and given.isdigit() and int(given) > 0 else settings.threads
+    return (job_threads() or -1) if settings.threads == -1 else settings.threads
 
 
 def extraction_options(settings: SfmSettings):

@@ -32,8 +32,9 @@ def methods_report(config: dict) -> dict:
     layout, backend = Layout(config["results"]), config["stereo"]["backend"]
     known = methods(config.get("variants"))
     rows, shared, priors = [], {}, []
-    for scene, sc in config["scenes"].items():
-        for name in named_methods(config, scene):
+    for scene in config["scenes"]:
+        names = named_methods(config, scene)
+        for name in names:
             path = layout.metrics(scene, name)
             if not path.is_file():
                 continue
@@ -51,7 +52,7 @@ def methods_report(config: dict) -> dict:
             star = layout.priors(scene, backend)
             if star.is_dir():
                 priors.append({**prior_accuracy(star, oracle, scene), "priors": f"D* ({backend})"})
-            for name in named_methods(config, scene):
+            for name in names:
                 for maps, what in ((layout.learned_priors(scene, name), "D̂"), (layout.depth(scene, name), "D")):
                     if maps.is_dir():
                         priors.append({**prior_accuracy(maps, oracle, scene), "priors": f"{what} of {name}"})
