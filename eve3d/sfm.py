@@ -2,9 +2,10 @@
 
 The photos are imported first (``eve3d.core.photos``: upright, longest side at most
 ``sfm.max_image_size``, unreadable files skipped with a warning), then SIFT extraction (one
-shared camera by default, one per size when the photos differ), exhaustive or sequential
-matching, incremental mapping, undistortion. A dataset that already has a COLMAP model with
-distortion is only undistorted (its pixels as stored, as the model was made). Output:
+shared camera by default, one per size when the photos differ), matching (every pair up to
+``sfm.exhaustive_up_to`` photos, above that each with the next ones by name), incremental
+mapping, undistortion. A dataset that already has a COLMAP model with distortion is only
+undistorted (its pixels as stored, as the model was made). Output:
 ``OUT/images``, ``OUT/sparse/0`` and the image pyramid ``OUT/images_{2,4,8}``.
 """
 from __future__ import annotations
@@ -73,7 +74,7 @@ def _reconstruct(photos: list[Path], work: Path, settings: SfmSettings) -> Path:
                                   reader_options=reader, extraction_options=extraction_options(settings),
                                   device=pycolmap.Device.cpu)
     with phase("matching"):
-        match_features(db, settings)
+        match_features(db, settings, len(names))
     with phase("mapping"):
         models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), mapping_options(settings))
     if not models:
@@ -86,6 +87,9 @@ def _reconstruct(photos: list[Path], work: Path, settings: SfmSettings) -> Path:
         raise Eve3dError(
             f"{photos[0].parent}: SfM registered {len(registered)} of {len(names)} images "
             f"(below the required fraction {settings.min_registered_fraction:g}); left out: {', '.join(left_out)}"
+            + (f"; they were matched in sequence by name (more than sfm.exhaustive_up_to "
+               f"{settings.exhaustive_up_to} photos): if their names are not in the order they were taken, "
+               f"set sfm.matcher: exhaustive" if settings.matcher_for(len(names)) == "sequential" else "")
         )
     # one flat folder, the images named as the photos' stems (the size folders only grouped the cameras)
     (work / "images").mkdir()

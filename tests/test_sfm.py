@@ -66,6 +66,22 @@ def test_exif_rotated_photos_give_the_poses_and_images_of_upright_ones(object_ph
 
 
 @pytest.mark.slow
+def test_more_photos_than_auto_matches_exhaustively_are_matched_in_sequence(object_photos, tmp_path):
+    """``sfm.matcher: auto`` above ``exhaustive_up_to`` photos matches each with the next ones by
+    name: the 16 photos of a 120° arc, named in order, all register, and the poses are those of
+    the truth as exhaustive matching gives them (< 1 % of the scene's radius)."""
+    r = run_cli("sfm", object_photos, tmp_path / "sfm", "--threads", "1", "--config", '{"sfm": {"exhaustive_up_to": 8}}')
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "16 photos: sequential matching (sfm.matcher auto: exhaustive up to 8)" in r.stdout
+    est, truth = load_scene(tmp_path / "sfm"), read_colmap(object_photos / "gt" / "sparse" / "0", object_photos / "images")
+    assert sorted(c.name for c in est.cameras) == sorted(c.name for c in truth.cameras)
+    E = np.array([est.camera(c.view_id).center for c in truth.cameras])
+    G = np.array([c.center for c in truth.cameras])
+    s, R, t = similarity_fit(E, G)
+    assert (np.linalg.norm(s * E @ R.T + t - G, axis=1) / truth.radius).max() < 0.01
+
+
+@pytest.mark.slow
 def test_sfm_skips_bad_files_and_gives_each_photo_size_a_camera(object_photos, tmp_path):
     """A note, a zero-byte JPEG and photos of two sizes: skipped with a warning naming each
     file, and a camera per size, never a traceback."""

@@ -21,7 +21,7 @@ from eve3d.core.settings_stereo import StereoSettings
 RENDER_BACKENDS = ("auto", "cpu", "torch", "gsplat")
 """Rasterisers: ``cpu`` (our C++ tiles), ``torch`` (pure PyTorch reference), ``gsplat``
 (CUDA); ``auto`` = gsplat on a CUDA tensor when installed, else cpu."""
-MATCHERS = ("exhaustive", "sequential")
+MATCHERS = ("auto", "exhaustive", "sequential")
 GROUND_TRUTH_CHECKS = ("error", "warn", "off")
 """What a failed ground-truth check does (``evaluate.ground_truth_check``): stop the run,
 warn and go on, or the check is skipped."""
@@ -74,8 +74,17 @@ def job_threads() -> int | None:
 @dataclass
 class SfmSettings(Checked):
     SECTION: ClassVar[str] = "sfm"
-    matcher: str = setting("exhaustive", choices=MATCHERS)
-    """'exhaustive' for small unordered sets, 'sequential' for ordered captures (video)."""
+    matcher: str = setting("auto", choices=MATCHERS)
+    """Which photos SfM matches: 'exhaustive' every pair, in any order; 'sequential' each photo
+    with the next ones by name (COLMAP's quadratic overlap), for photos named in the order they
+    were taken, as phones and videos name them (COLMAP's loop detection needs a vocabulary
+    tree, a download, so a loop closes only through those pairs); 'auto' exhaustive up to
+    ``exhaustive_up_to`` photos, sequential above."""
+    exhaustive_up_to: int = setting(64, ge=2)
+    """The most photos ``auto`` matches exhaustively. Exhaustive pairs grow as the square of the
+    photos, sequential's as the photos: on 2 cores, phone photos at 1280 px, 64 photos take
+    about 200 s exhaustively (2016 pairs, a third of a 10-minute run) and 45 s in sequence
+    (docs/results.md, "Coarse to fine", on matching)."""
     camera_model: str = "SIMPLE_RADIAL"
     """COLMAP model estimated for the images (undistorted to PINHOLE afterwards)."""
     single_camera: bool = True
@@ -92,6 +101,12 @@ class SfmSettings(Checked):
     and in the generator's triangulation. Pairs that do not overlap spend them all, and around
     an object most pairs do not: the check is most of exhaustive matching's time. A pair with
     30 % inliers is still verified 99 % of the time (docs/results.md, "Training", on SfM)."""
+    def matcher_for(self, photos: int) -> str:
+        """``exhaustive`` or ``sequential``: the matcher for a set of ``photos``."""
+        if self.matcher != "auto":
+            return self.matcher
+        return "exhaustive" if photos <= self.exhaustive_up_to else "sequential"
+
     threads: int = setting(-1, nonzero=True)
     """Threads for extraction, matching and mapping: -1 = every core the job has (the
     workflow's ``OMP_NUM_THREADS``, else the machine's: a shell that sets

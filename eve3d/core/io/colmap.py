@@ -328,17 +328,21 @@ def mapping_options(settings: SfmSettings):
     return options
 
 
-def match_features(db_path: Path, settings: SfmSettings) -> None:
-    """Match the features in the database ``db_path`` (``settings.matcher``) and verify each
-    pair's two-view geometry (at most ``settings.ransac_trials`` RANSAC trials), on
-    ``settings.threads`` threads."""
+def match_features(db_path: Path, settings: SfmSettings, photos: int) -> None:
+    """Match the features of the ``photos`` images in the database ``db_path``
+    (``settings.matcher_for``) and verify each pair's two-view geometry (at most
+    ``settings.ransac_trials`` RANSAC trials), on ``settings.threads`` threads."""
     pycolmap = import_pycolmap()
 
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = sfm_threads(settings)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.max_num_trials = settings.ransac_trials
-    match = pycolmap.match_exhaustive if settings.matcher == "exhaustive" else pycolmap.match_sequential
+    matcher = settings.matcher_for(photos)
+    if matcher != settings.matcher:
+        print(f"{photos} photos: {matcher} matching (sfm.matcher auto: exhaustive up to "
+              f"{settings.exhaustive_up_to})", flush=True)
+    match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
     match(str(db_path), matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
 
 
@@ -361,7 +365,7 @@ def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, 
     pycolmap.extract_features(str(db_path), str(image_dir), image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
                               reader_options=reader, extraction_options=extraction_options(settings),
                               device=pycolmap.Device.cpu)
-    match_features(db_path, settings)
+    match_features(db_path, settings, len(names))
     # the database's own ids, with our intrinsics and poses: the triangulator pairs them by id
     index = {name: i for i, name in enumerate(names)}
     known = pycolmap.Reconstruction()
