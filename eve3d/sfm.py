@@ -74,7 +74,7 @@ def _reconstruct(photos: list[Path], work: Path, settings: SfmSettings) -> Path:
                                   reader_options=reader, extraction_options=extraction_options(settings),
                                   device=pycolmap.Device.cpu)
     with phase("matching"):
-        match_features(db, settings, len(names))
+        match_features(db, settings, names)
     with phase("mapping"):
         models = pycolmap.incremental_mapping(str(db), str(image_dir), str(work / "sparse"), mapping_options(settings))
     if not models:
@@ -84,12 +84,15 @@ def _reconstruct(photos: list[Path], work: Path, settings: SfmSettings) -> Path:
     print(f"SfM registered {len(registered)} of {len(names)} images, {best.num_points3D()} points")
     if len(registered) < settings.min_registered_fraction * len(names):
         left_out = sorted(p.name for p, n in zip(photos, names) if n not in registered)
+        hint = ""
+        if settings.matcher_for(len(names)) == "sequential":
+            why = ("sfm.matcher: sequential" if settings.matcher == "sequential"
+                   else f"more than sfm.exhaustive_up_to {settings.exhaustive_up_to} photos")
+            hint = (f"; they were matched in sequence, by name ({why}): if their names do not follow the order "
+                    f"they were taken in, set sfm.matcher: exhaustive")
         raise Eve3dError(
             f"{photos[0].parent}: SfM registered {len(registered)} of {len(names)} images "
-            f"(below the required fraction {settings.min_registered_fraction:g}); left out: {', '.join(left_out)}"
-            + (f"; they were matched in sequence by name (more than sfm.exhaustive_up_to "
-               f"{settings.exhaustive_up_to} photos): if their names are not in the order they were taken, "
-               f"set sfm.matcher: exhaustive" if settings.matcher_for(len(names)) == "sequential" else "")
+            f"(below the required fraction {settings.min_registered_fraction:g}); left out: {', '.join(left_out)}{hint}"
         )
     # one flat folder, the images named as the photos' stems (the size folders only grouped the cameras)
     (work / "images").mkdir()

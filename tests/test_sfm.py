@@ -66,19 +66,25 @@ def test_exif_rotated_photos_give_the_poses_and_images_of_upright_ones(object_ph
 
 
 @pytest.mark.slow
-def test_more_photos_than_auto_matches_exhaustively_are_matched_in_sequence(object_photos, tmp_path):
-    """``sfm.matcher: auto`` above ``exhaustive_up_to`` photos matches each with the next ones by
-    name: the 16 photos of a 120° arc, named in order, all register, and the poses are those of
-    the truth as exhaustive matching gives them (< 1 % of the scene's radius)."""
+def test_more_photos_than_auto_matches_exhaustively_are_matched_in_sequence(object_photos, object_photos_sfm, tmp_path):
+    """``sfm.matcher: auto`` above ``exhaustive_up_to`` photos matches each with the next ones
+    (``sequential_pairs``, tested on its own): the 16 photos of a 120° arc, named in order, all
+    register, with camera centres as near the truth as exhaustive matching puts them (measured:
+    max 2.2 % against 2.1 % of the scene's radius, mean 0.64 % against 0.61 %)."""
     r = run_cli("sfm", object_photos, tmp_path / "sfm", "--threads", "1", "--config", '{"sfm": {"exhaustive_up_to": 8}}')
     assert r.returncode == 0, r.stderr[-2000:]
     assert "16 photos: sequential matching (sfm.matcher auto: exhaustive up to 8)" in r.stdout
-    est, truth = load_scene(tmp_path / "sfm"), read_colmap(object_photos / "gt" / "sparse" / "0", object_photos / "images")
-    assert sorted(c.name for c in est.cameras) == sorted(c.name for c in truth.cameras)
-    E = np.array([est.camera(c.view_id).center for c in truth.cameras])
+    truth = read_colmap(object_photos / "gt" / "sparse" / "0", object_photos / "images")
     G = np.array([c.center for c in truth.cameras])
-    s, R, t = similarity_fit(E, G)
-    assert (np.linalg.norm(s * E @ R.T + t - G, axis=1) / truth.radius).max() < 0.01
+    errors = []
+    for model in (tmp_path / "sfm", object_photos_sfm):  # in sequence, then every pair
+        est = load_scene(model)
+        assert sorted(c.name for c in est.cameras) == sorted(c.name for c in truth.cameras)
+        E = np.array([est.camera(c.view_id).center for c in truth.cameras])
+        s, R, t = similarity_fit(E, G)
+        errors.append(np.linalg.norm(s * E @ R.T + t - G, axis=1) / truth.radius)
+    sequence, every_pair = errors
+    assert sequence.max() < 1.25 * every_pair.max() and sequence.mean() < 1.25 * every_pair.mean()
 
 
 @pytest.mark.slow

@@ -75,9 +75,11 @@ def preview_image(key: str, arr: np.ndarray, confidence: np.ndarray | None = Non
     colour range), confidence grey, normals RGB."""
     import cv2
 
-    if key == "normal":  # in float32: a full-size photo's normals are millions of values
+    if key == "normal":  # in the maps' float32: a full-size photo's normals are millions of values
+        valid = (arr != 0).any(axis=-1) & np.isfinite(arr).all(axis=-1)
+        arr = np.where(valid[..., None], arr, 0)
         rgb = ((arr * np.float32([0.5, -0.5, -0.5]) + np.float32(0.5)) * np.float32(255)).clip(0, 255).astype(np.uint8)
-        rgb[~(arr != 0).any(axis=-1)] = 0
+        rgb[~valid] = 0
         return rgb
     if key == "depth":
         valid = arr > 0

@@ -76,15 +76,15 @@ class SfmSettings(Checked):
     SECTION: ClassVar[str] = "sfm"
     matcher: str = setting("auto", choices=MATCHERS)
     """Which photos SfM matches: 'exhaustive' every pair, in any order; 'sequential' each photo
-    with the next ones by name (COLMAP's quadratic overlap), for photos named in the order they
-    were taken, as phones and videos name them (COLMAP's loop detection needs a vocabulary
-    tree, a download, so a loop closes only through those pairs); 'auto' exhaustive up to
-    ``exhaustive_up_to`` photos, sequential above."""
+    with the next ones in the order of their file names (COLMAP's pairs: the next 10 and those
+    2^k ahead), for photos named in the order they were taken, as phones and videos name them
+    (COLMAP's loop detection needs a vocabulary tree, a download, so a loop closes only through
+    those pairs); 'auto' exhaustive up to ``exhaustive_up_to`` photos, sequential above."""
     exhaustive_up_to: int = setting(64, ge=2)
     """The most photos ``auto`` matches exhaustively. Exhaustive pairs grow as the square of the
     photos, sequential's as the photos: on 2 cores, phone photos at 1280 px, 64 photos take
-    about 200 s exhaustively (2016 pairs, a third of a 10-minute run) and 45 s in sequence
-    (docs/results.md, "Coarse to fine", on matching)."""
+    about 200 s exhaustively (2016 pairs, a third of a 10-minute run) and 70 s in sequence,
+    which registers less surely (docs/results.md, "Coarse to fine", on matching)."""
     camera_model: str = "SIMPLE_RADIAL"
     """COLMAP model estimated for the images (undistorted to PINHOLE afterwards)."""
     single_camera: bool = True
@@ -101,12 +101,6 @@ class SfmSettings(Checked):
     and in the generator's triangulation. Pairs that do not overlap spend them all, and around
     an object most pairs do not: the check is most of exhaustive matching's time. A pair with
     30 % inliers is still verified 99 % of the time (docs/results.md, "Training", on SfM)."""
-    def matcher_for(self, photos: int) -> str:
-        """``exhaustive`` or ``sequential``: the matcher for a set of ``photos``."""
-        if self.matcher != "auto":
-            return self.matcher
-        return "exhaustive" if photos <= self.exhaustive_up_to else "sequential"
-
     threads: int = setting(-1, nonzero=True)
     """Threads for extraction, matching and mapping: -1 = every core the job has (the
     workflow's ``OMP_NUM_THREADS``, else the machine's: a shell that sets
@@ -114,6 +108,12 @@ class SfmSettings(Checked):
     twice as slow on 2 cores (pycolmap's multi-threaded matching and mapping are not: the
     cameras move between runs by up to 1 % of the scene; docs/results.md, "Training", on SfM):
     the generator and the tests that compare two runs use it."""
+
+    def matcher_for(self, photos: int) -> str:
+        """``exhaustive`` or ``sequential``: the matcher for a set of ``photos``."""
+        if self.matcher != "auto":
+            return self.matcher
+        return "exhaustive" if photos <= self.exhaustive_up_to else "sequential"
 
 
 # --------------------------------------------------------------------------- training

@@ -19,8 +19,10 @@ def test_depth_preview_shows_only_confident_depth():
 
 def test_normal_preview_colours_each_direction_and_leaves_no_normal_black():
     """Camera frame (x right, y down, z forward): a surface facing the camera (0, 0, −1) is
-    blue-violet, one facing up (0, −1, 0) green, and a pixel without a normal black."""
-    normal = np.zeros((2, 2, 3), np.float32)
+    blue-violet, one facing up (0, −1, 0) green, and a pixel without a normal (zero, or NaN
+    where a depth had none) black."""
+    normal = np.zeros((2, 3, 3), np.float32)
+    normal[1, 2] = np.nan
     normal[0, 0] = (0, 0, -1)
     normal[0, 1] = (0, -1, 0)
     normal[1, 0] = (1, 0, 0)
@@ -29,4 +31,4 @@ def test_normal_preview_colours_each_direction_and_leaves_no_normal_black():
     assert shown[0, 0].tolist() == [127, 127, 255]
     assert shown[0, 1].tolist() == [127, 255, 127]
     assert shown[1, 0].tolist() == [255, 127, 127]
-    assert shown[1, 1].tolist() == [0, 0, 0]
+    assert shown[1, 1].tolist() == shown[1, 2].tolist() == [0, 0, 0]

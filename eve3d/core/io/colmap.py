@@ -328,22 +328,41 @@ def mapping_options(settings: SfmSettings):
     return options
 
 
-def match_features(db_path: Path, settings: SfmSettings, photos: int) -> None:
-    """Match the features of the ``photos`` images in the database ``db_path``
-    (``settings.matcher_for``) and verify each pair's two-view geometry (at most
-    ``settings.ransac_trials`` RANSAC trials), on ``settings.threads`` threads."""
+SEQUENTIAL_OVERLAP = 10
+"""COLMAP's sequential matching: each image with its next 10, and (quadratic) with those 2^k
+ahead, k < 10."""
+
+
+def sequential_pairs(names: list[str], overlap: int = SEQUENTIAL_OVERLAP) -> list[tuple[str, str]]:
+    """COLMAP's sequential pairs of ``names`` in the order given. COLMAP's own generator orders
+    the images by their whole name, where ours start with a folder per photo size: a capture
+    of portrait and landscape photos would be matched as two sequences."""
+    steps = sorted({1 + k for k in range(overlap)} | {1 << k for k in range(overlap)})
+    return [(a, names[i + d]) for i, a in enumerate(names) for d in steps if i + d < len(names)]
+
+
+def match_features(db_path: Path, settings: SfmSettings, names: list[str]) -> None:
+    """Match the features of the images ``names`` (in the order they were taken) in the
+    database ``db_path`` (``settings.matcher_for``) and verify each pair's two-view geometry
+    (at most ``settings.ransac_trials`` RANSAC trials), on ``settings.threads`` threads."""
     pycolmap = import_pycolmap()
 
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = sfm_threads(settings)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.max_num_trials = settings.ransac_trials
-    matcher = settings.matcher_for(photos)
+    options = dict(matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
+    matcher = settings.matcher_for(len(names))
     if matcher != settings.matcher:
-        print(f"{photos} photos: {matcher} matching (sfm.matcher auto: exhaustive up to "
+        print(f"{len(names)} photos: {matcher} matching (sfm.matcher auto: exhaustive up to "
               f"{settings.exhaustive_up_to})", flush=True)
-    match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
-    match(str(db_path), matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
+    if matcher == "exhaustive":
+        pycolmap.match_exhaustive(str(db_path), **options)
+        return
+    pairs = db_path.with_name("pairs.txt")
+    pairs.write_text("".join(f"{a} {b}\n" for a, b in sequential_pairs(names)))
+    pycolmap.match_image_pairs(str(db_path), pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(pairs)),
+                               **options)
 
 
 def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, settings: SfmSettings | None = None
@@ -365,7 +384,7 @@ def triangulate_known_poses(cameras: list[Camera], image_dir: Path, work: Path, 
     pycolmap.extract_features(str(db_path), str(image_dir), image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
                               reader_options=reader, extraction_options=extraction_options(settings),
                               device=pycolmap.Device.cpu)
-    match_features(db_path, settings, len(names))
+    match_features(db_path, settings, names)
     # the database's own ids, with our intrinsics and poses: the triangulator pairs them by id
     index = {name: i for i, name in enumerate(names)}
     known = pycolmap.Reconstruction()

@@ -45,3 +45,28 @@ def test_sfm_uses_the_threads_the_job_has(monkeypatch):
         assert sfm_threads(SfmSettings()) == -1
     monkeypatch.delenv("OMP_NUM_THREADS")
     assert sfm_threads(SfmSettings()) == -1 and sfm_threads(SfmSettings(threads=2)) == 2
+
+
+def test_auto_matches_every_pair_up_to_the_limit_then_in_sequence():
+    from eve3d.core.settings import SfmSettings
+
+    auto = SfmSettings()
+    assert auto.matcher == "auto" and auto.exhaustive_up_to == 64
+    assert auto.matcher_for(64) == "exhaustive" and auto.matcher_for(65) == "sequential"
+    assert SfmSettings(matcher="exhaustive").matcher_for(500) == "exhaustive"
+    assert SfmSettings(matcher="sequential").matcher_for(3) == "sequential"
+
+
+def test_sequential_pairs_follow_the_photos_order_not_their_size_folders():
+    """COLMAP's pairs (the next 10, and those 2^k ahead) in the order the photos are given: a
+    portrait photo between two landscape ones is matched with both, whatever its folder."""
+    from eve3d.core.io.colmap import sequential_pairs
+
+    names = [f"{'960x1280' if i % 3 else '1280x960'}/IMG_{i:04d}.png" for i in range(23)]
+    pairs = sequential_pairs(names)
+    assert len(pairs) == len(set(pairs)) == 182  # of the 253 exhaustive pairs
+    assert pairs[:2] == [(names[0], names[1]), (names[0], names[2])]
+    index = {n: i for i, n in enumerate(names)}
+    gaps = {index[b] - index[a] for a, b in pairs}
+    assert gaps == set(range(1, 11)) | {16}  # 1..10, and 2^4 (2^5 = 32 is past the last photo)
+    assert len(sequential_pairs([f"{i}.png" for i in range(64)])) == 665 and sequential_pairs(names[:1]) == []
