@@ -47,7 +47,8 @@ def _cmd_synth(a: argparse.Namespace) -> None:
     from eve3d.core.settings import SyntheticSettings
     from eve3d.synth import run_synth
 
-    run_synth(_settings(a, SyntheticSettings, "synthetic"), kind=a.kind, out=a.out, images_only=a.images_only)
+    run_synth(_settings(a, SyntheticSettings, "synthetic"), kind=a.kind, out=a.out, images_only=a.images_only,
+              capture=a.capture)
 
 
 def _cmd_sfm(a: argparse.Namespace) -> None:
@@ -345,6 +346,9 @@ def _add_data_parsers(sub) -> None:
     s.add_argument("kind", choices=list(KINDS))
     s.add_argument("out", help="output dataset folder (replaced atomically)")
     s.add_argument("--images-only", action="store_true", help="hide the poses under gt/ (to exercise SfM)")
+    s.add_argument("--capture", action="store_true",
+                   help="write it as a user brings a posed capture: images/ and a COLMAP text model, the GT mesh "
+                        "in gt/mesh.ply for the config's gt_mesh, nothing that says it was generated")
     s = _stage(sub, "sfm", _cmd_sfm, "pycolmap SfM (or undistortion only) → images/ + sparse/0 (PINHOLE)",
                (SfmSettings, "sfm"))
     s.add_argument("dataset", help="folder with images/ (and optionally a distorted COLMAP model)")

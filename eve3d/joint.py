@@ -31,13 +31,13 @@ from eve3d.core.settings import JointSettings, RenderSettings
 from eve3d.core.timing import phase
 from eve3d.gaussians.geometry import CameraStack, depth_to_normal, depth_to_points
 from eve3d.gaussians.losses import (depth_confirmation, depth_normal_loss, forward_backward_error, geometric_loss,
-                                    ncc_loss, rgb_loss)
+                                    ncc_loss)
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.neighbours import select_neighbours
 from eve3d.gaussians.render import RenderOutput, render_model
 from eve3d.gaussians.render.projection import CameraTensors
 from eve3d.gaussians.train_state import TrainState
-from eve3d.gaussians.training import LossTerms, Trainer, initial_points
+from eve3d.gaussians.training import LossTerms, Trainer, initial_points, photometric_terms
 from eve3d.gaussians.views import View, Views
 from eve3d.priors.learnable import Priors, comparison_preview, filled_log_depth, load_priors, prior_points
 
@@ -176,7 +176,7 @@ def loss_terms(trainer: Trainer, settings: JointSettings, neighbours: list[list[
         if settings.exposure:
             e = exposure[view.index]
             rgb = rgb @ e[:, :3].T + e[:, 3]
-        t = {"rgb": rgb_loss(rgb, view.image, settings.ssim_weight)}
+        t = photometric_terms(settings, view, out, rgb)
         visible = out.visible
         if settings.scale_weight and visible.any():
             t["scale"] = settings.scale_weight * trainer.model.scales[visible].amin(-1).mean()

@@ -35,18 +35,32 @@ time. A block is about 10 KB of grid and 8 KB of marching-cubes buffers, so a gr
 131,072 blocks peaks at about 2.5 GB."""
 
 
-def view_depths(scene: Scene, depth_dir: Path, min_confidence: float):
+def view_depths(scene: Scene, depth_dir: Path, min_confidence: float, max_incidence: float = 90.0):
     """Yield (camera at the map's size, depth zeroed where it is not fusable) for every
-    view, one map read at a time (its depth and confidence only, not its normals)."""
+    view, one map read at a time (its depth and confidence; its normals only to leave out the
+    pixels seen more obliquely than ``max_incidence`` degrees, when below 90)."""
+    oblique = max_incidence < 90
     for cam in scene.cameras:
         path = depth_dir / f"{cam.view_id}.npz"
         if not path.exists():
             raise Eve3dError(f"{path}: depth map missing for view {cam.view_id}")
-        maps = load_maps(path, ("depth", "confidence"))
+        maps = load_maps(path, ("depth", "confidence") + (("normal",) if oblique else ()))
         depth = maps["depth"].astype(np.float32)
         small = map_camera(cam, depth.shape, path)  # fused at the map's size (priors: the pretrain's)
-        depth = np.where(fusable(maps, min_confidence), depth, 0).astype(np.float32)
+        keep = fusable(maps, min_confidence)
+        if oblique and "normal" in maps:
+            keep &= incidence(small, maps["normal"]) <= max_incidence
+        depth = np.where(keep, depth, 0).astype(np.float32)
         yield small, depth
+
+
+def incidence(cam: Camera, normal: np.ndarray) -> np.ndarray:
+    """(H, W) degrees between each pixel's ray and its camera-space ``normal`` (H, W, 3);
+    90 where the normal is missing."""
+    v, u = np.mgrid[0:cam.height, 0:cam.width].astype(np.float32) + 0.5
+    rays = np.stack([(u - cam.K[0, 2]) / cam.K[0, 0], (v - cam.K[1, 2]) / cam.K[1, 1], np.ones_like(u)], -1)
+    cos = np.abs((rays * normal).sum(-1)) / (np.linalg.norm(rays, axis=-1) * np.linalg.norm(normal, axis=-1) + 1e-12)
+    return np.degrees(np.arccos(np.clip(cos, 0, 1)))
 
 
 def _row_bands(cam: Camera, multiple: int = 1) -> Iterator[slice]:
@@ -81,7 +95,7 @@ def fused_depths(scene: Scene, depth_dir: Path, settings: MeshSettings, desc: st
     """:func:`view_depths`, only the depths within ``depth_max`` and the region of interest
     (a progress bar ``desc`` when given)."""
     region = scene.region(settings.region)
-    views = view_depths(scene, depth_dir, settings.min_confidence)
+    views = view_depths(scene, depth_dir, settings.min_confidence, settings.max_incidence)
     if desc:
         views = tqdm(views, total=len(scene.cameras), desc=desc, unit="view", leave=leave)
     for cam, depth in views:

@@ -30,8 +30,8 @@ from eve3d.core.scene import Scene
 from eve3d.core.settings import PretrainSettings, RenderSettings
 from eve3d.core.timing import phase
 from eve3d.gaussians.model import GaussianModel
-from eve3d.gaussians.render import render_model
-from eve3d.gaussians.training import LossTerms, Trainer, initial_points
+from eve3d.gaussians.render import RenderOutput, render_model
+from eve3d.gaussians.training import LossTerms, Trainer, initial_points, photometric_terms
 from eve3d.gaussians.views import View
 
 
@@ -109,7 +109,10 @@ def setup_pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> P
             state.remove_gaussians(drop)
             print(f"\npretrain: step {step}: simplified to {len(trainer.model)} Gaussians", file=sys.stderr)
 
-    return PretrainRun(trainer, trainer.photometric_terms, events, tone)
+    def loss(step: int, view: View, out: RenderOutput) -> dict[str, torch.Tensor]:
+        return photometric_terms(settings, view, out)
+
+    return PretrainRun(trainer, loss, events, tone)
 
 
 def pretrain(scene: Scene, out_dir: Path, settings: PretrainSettings) -> dict:

@@ -377,7 +377,7 @@ def point_colors(parts: list[Part], caster: MeshRaycaster, cams: list[Camera], p
 
 def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: int = 240, seed: int = 0,
              images_only: bool = False, supersample: int = 2, arc: float = 360.0, matcher: str = "exhaustive",
-             surface_samples: int = 0, background: str = "black") -> Path:
+             surface_samples: int = 0, background: str = "black", capture: bool = False) -> Path:
     """Render the synthetic scene ``kind`` into ``out`` (written atomically); ``arc`` limits
     the cameras' azimuth range in degrees (a DTU-like front arc for object scenes); ``background``:
     what the photos show where no surface is (``BACKGROUNDS``; the ground truth is the same).
@@ -386,7 +386,10 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
     photos matched (``matcher``: ``exhaustive`` or ``sequential``, the cameras' order) and
     triangulated with pycolmap, outliers included (``eve3d.core.io.colmap.triangulate_known_poses``).
     ``surface_samples`` > 0 puts that many exact surface samples in their place instead: a
-    benchmark's fixed model size (``eve3d bench training``), never a method's input."""
+    benchmark's fixed model size (``eve3d bench training``), never a method's input.
+    ``capture``: the scene as a user brings a posed capture (a COLMAP text model beside the
+    images, no masks, no ``eve3d_scene.json``: read as any COLMAP folder), its GT mesh in
+    ``gt/mesh.ply`` for a config's ``gt_mesh``."""
     import open3d as o3d
 
     if kind not in KINDS:
@@ -406,7 +409,7 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
                 if spec.scene_kind == "object":
                     fg = np.isin(caster.cast(cam).geometry, [k for k, p in enumerate(parts) if p.foreground])
             write_image(tmp / "images" / cam.name, np.clip(rgb * 255 + 0.5, 0, 255).astype(np.uint8))
-            if spec.scene_kind == "object":
+            if spec.scene_kind == "object" and not capture:
                 write_image(tmp / "masks" / cam.name, (fg * 255).astype(np.uint8))
         mesh = o3d.geometry.TriangleMesh()
         for part in parts:
@@ -419,9 +422,11 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
                 pts, colors, pviews = triangulate_known_poses(cams, tmp / "images", tmp / "sfm",
                                                               SfmSettings(matcher=matcher, seed=seed, threads=1))
         scene = Scene(root=out, cameras=cams, points=pts, point_colors=colors, point_views=pviews)
-        write_colmap(scene, tmp / ("gt/sparse/0" if images_only else "sparse/0"))
+        write_colmap(scene, tmp / ("gt/sparse/0" if images_only else "sparse/0"), binary=not capture)
         (tmp / "gt").mkdir(exist_ok=True)
         o3d.io.write_triangle_mesh(str(tmp / "gt" / "mesh.ply"), mesh)
+        if capture:
+            return out
         meta = {"kind": spec.scene_kind, "gt_mesh": "gt/mesh.ply",
                 "generator": {"kind": kind, "views": views, "width": width, "height": height, "seed": seed,
                               "arc": arc, "background": background}}
@@ -431,10 +436,12 @@ def generate(kind: str, out: Path, views: int = 32, width: int = 320, height: in
     return out
 
 
-def run_synth(settings: SyntheticSettings, *, kind: str, out: Path, images_only: bool = False) -> None:
-    """The ``synth`` stage: the generated scene ``kind``, sized by ``settings``, into ``out``."""
+def run_synth(settings: SyntheticSettings, *, kind: str, out: Path, images_only: bool = False,
+              capture: bool = False) -> None:
+    """The ``synth`` stage: the generated scene ``kind``, sized by ``settings``, into ``out``
+    (``capture``: as a user's posed capture, :func:`generate`)."""
     with phase("generate"):
         generate(kind, Path(out), views=settings.views, width=settings.width, height=settings.height,
                  seed=settings.seed, images_only=images_only, arc=settings.arc,
-                 surface_samples=settings.surface_samples, background=settings.background)
+                 surface_samples=settings.surface_samples, background=settings.background, capture=capture)
     print(f"wrote {out}")

@@ -70,6 +70,13 @@ def tiny_scene(tiny_dataset):
 
 
 @pytest.fixture(scope="session")
+def tiny_sky_scene(tmp_path_factory):
+    """``tiny_scene``'s object before a plain sky, as photos have one."""
+    return load_scene(made_once(tmp_path_factory, "tiny/object-sky", lambda out: generate(
+        "object", out, views=8, width=64, height=48, surface_samples=TINY_START, background="sky")))
+
+
+@pytest.fixture(scope="session")
 def object_photos(tmp_path_factory) -> Path:
     """16 photos of the object from a 120° arc at 480×360, images only (the poses hidden
     under gt/): a user's folder of photos, which SfM has to pose. Read only: a test that

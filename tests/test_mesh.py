@@ -170,3 +170,25 @@ def test_a_far_background_does_not_become_a_wall(tmp_path):
     print(walled, cropped, sep="\n")
     assert walled["extent_ratio"] > 10
     assert cropped["extent_ratio"] <= 2.0 and max(cropped["extent"]) < 3.5  # the object is 3 × 3 × 0.85
+
+
+def test_pixels_seen_more_obliquely_than_max_incidence_are_not_fused(tmp_path):
+    """A wall facing the camera: at the image centre its ray meets it head on, 45° where
+    (u − cx)/fx = 1; with ``mesh.max_incidence`` 40 the pixels beyond that are left out, the
+    depths within it fused as they are."""
+    from eve3d.core.maps import save_maps
+    from eve3d.core.scene import Camera, Scene
+    from eve3d.mesh import incidence, view_depths
+
+    cam = Camera("v.png", 40, 20, np.array([[10.0, 0, 20], [0, 10, 10], [0, 0, 1]]), np.eye(3), np.zeros(3))
+    normal = np.broadcast_to(np.float32([0, 0, -1]), (20, 40, 3))
+    angle = incidence(cam, normal)
+    assert angle[10, 20] == pytest.approx(np.degrees(np.arctan(np.hypot(0.05, 0.05))), abs=1e-3)
+    assert angle[10, 29] == pytest.approx(np.degrees(np.arctan(np.hypot(0.95, 0.05))), abs=1e-3)
+    save_maps(tmp_path / "v.npz", preview=False, depth=np.full((20, 40), 2.0), confidence=np.ones((20, 40)),
+              normal=normal)
+    scene = Scene(None, [cam])
+    (_, every), = view_depths(scene, tmp_path, 0.5)
+    (_, kept), = view_depths(scene, tmp_path, 0.5, max_incidence=40)
+    assert (every == 2).all()
+    assert np.array_equal(kept > 0, angle <= 40) and 0.2 < (kept > 0).mean() < 0.9 and (kept[kept > 0] == 2).all()

@@ -93,3 +93,21 @@ def test_a_background_shows_where_no_surface_is_and_stays_empty(tmp_path):
     backdrop = np.stack([local_std(v, 5) for v in images["backdrop"]])[outside]
     print(f"grey std over 5×5 on the background: sky {np.median(sky):.2f}, backdrop {np.median(backdrop):.2f}")
     assert np.median(sky) < 1.0 < 3.0 < np.median(backdrop)  # plain against textured
+
+
+def test_a_generated_capture_is_read_as_a_users_colmap_folder(tmp_path):
+    """``eve3d synth --capture``: images and a COLMAP text model, the GT mesh apart in gt/, and
+    nothing that says it was generated: read as any user's COLMAP folder (kind ``scene``, no
+    GT mesh until a config names it), with the generated scene's cameras."""
+    from tests.helpers import run_cli
+
+    r = run_cli("synth", "object", tmp_path / "capture", "--capture", "--config",
+                '{"preset": null, "synthetic": {"views": 3, "width": 64, "height": 48, "surface_samples": 200, '
+                '"background": "sky"}}')
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = tmp_path / "capture"
+    assert sorted(p.name for p in out.iterdir()) == ["gt", "images", "sparse"]
+    assert {"cameras.txt", "images.txt", "points3D.txt"} <= {p.name for p in (out / "sparse" / "0").iterdir()}
+    scene = load_scene(out)
+    assert scene.extras["format"] == "colmap" and scene.kind == "scene" and scene.gt_mesh is None
+    assert (out / "gt" / "mesh.ply").is_file() and len(scene.cameras) == 3 and len(scene.points) > 50

@@ -13,8 +13,8 @@ that write fixed names inside their output folder use the file-name constants be
     {results}/{scene}/sfm/                    posed dataset of an image-only one
     {results}/{scene}/stereo/                 virtual right views
     {results}/{scene}/priors/{backend}/       depth priors
-    {results}/{scene}/pretrain/               point_cloud.ply, tone_curve.json, train_metrics.json
-    {results}/{scene}/{method}/               point_cloud.ply, depth/, priors/, train_metrics.json,
+    {results}/{scene}/pretrain/               point_cloud.ply, environment.npz, tone_curve.json, train_metrics.json
+    {results}/{scene}/{method}/               point_cloud.ply, environment.npz, depth/, priors/, train_metrics.json,
                                               mesh.ply, mesh_views/, metrics.json, held_out/
 
 A wildcard in place of a name gives the Snakemake pattern:
@@ -32,6 +32,9 @@ from pathlib import Path
 
 MODEL_FILE = "point_cloud.ply"
 """A training stage's Gaussians (3DGS PLY)."""
+ENVIRONMENT_FILE = "environment.npz"
+"""Beside a trained model's PLY: its environment at infinity (``eve3d.gaussians.environment``),
+with ``environment.png``, its map, beside it."""
 TONE_FILE = "tone_curve.json"
 """Written by the pretrain beside its PLY: the (256,) curve its photos were fitted through."""
 TRAIN_METRICS_FILE = "train_metrics.json"

@@ -138,6 +138,8 @@ class LearningRates(Checked):
     """Step of the base colour (SH degree 0)."""
     shN: float = setting(2.5e-3 / 20, ge=0)
     """Step of the higher SH coefficients."""
+    environment: float = setting(1e-2, ge=0)
+    """Step of the environment's texels (their colours' logits; it starts from the photos)."""
 
 
 @dataclass
@@ -185,7 +187,7 @@ class RenderSettings(Checked):
     """Cap on the training images' longest side in pixels (3DGS caps at 1.6k); 0 = none.
     A model renders other stages' views (right views, held-out views) at this size too."""
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """RGB behind the Gaussians."""
+    """RGB behind the Gaussians of a model without an environment (``train.environment`` 0)."""
     backend: str = setting("auto", choices=RENDER_BACKENDS)
     """Rasteriser (``RENDER_BACKENDS``)."""
     antialiased: bool = True
@@ -239,6 +241,18 @@ class TrainSettings(RenderSettings):
     they span more of the scene. 0 = off (docs/results.md, "Coarse to fine")."""
     coarse_side: int = setting(256, ge=8)
     """The coarse steps' longest image side in pixels."""
+    environment: int = setting(256, ge=0)
+    """Height in texels of the environment at infinity behind the Gaussians (an
+    equirectangular map twice as wide, learnt with them: ``eve3d.gaussians.environment``),
+    which explains a sky or a far background so that no Gaussian paints it; 0 = none, the
+    constant ``background`` (the paper's and PGSR's)."""
+    sky_weight: float = setting(0.1, ge=0)
+    """Weight of the loss on the rendered alpha beyond the measured scene: mean(α · beyond)
+    over the pixels, ``beyond`` the rays that miss the sparse points' hull (``sky_margin``),
+    where only the environment is to be seen (no Gaussian paints the sky there)."""
+    sky_margin: float = setting(0.1, ge=0)
+    """The measured scene: the sparse points' hull grown by this share of its size
+    (``eve3d.core.scene.Scene.hull``)."""
     init_thickness: float = setting(0.1, gt=0, le=1)
     """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
     are discs in the plane of their 8 nearest points, this thin along its normal (a
@@ -400,6 +414,9 @@ class MeshSettings(Checked):
     cropped to it. 0 = no region (fuse every depth)."""
     min_confidence: float = setting(0.5, ge=0, le=1)
     """Pixels whose confidence M^c is below this are not fused."""
+    max_incidence: float = setting(90.0, gt=0, le=90)
+    """Pixels whose rendered normal is more than this many degrees from their ray are not
+    fused (PGSR: 80); 90 = every pixel."""
     weight_threshold: float = setting(1.0, ge=0)
     """Minimum accumulated TSDF weight for a surface to be extracted."""
     largest_cluster: bool | None = None

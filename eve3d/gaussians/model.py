@@ -15,6 +15,8 @@ import torch
 
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_path
+from eve3d.core.layout import ENVIRONMENT_FILE
+from eve3d.gaussians.environment import Environment
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -83,16 +85,18 @@ def eval_sh(degree: int, sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
 
 class GaussianModel:
     """N Gaussians. ``params``: means (N, 3), quats (N, 4) (w, x, y, z), log_scales (N, 3),
-    logit_opacities (N,), sh0 (N, 1, 3), shN (N, K − 1, 3) for SH degree ``sh_degree``."""
+    logit_opacities (N,), sh0 (N, 1, 3), shN (N, K − 1, 3) for SH degree ``sh_degree``;
+    ``environment``: what lies behind them at infinity (None: a constant background)."""
 
     NAMES = ("means", "quats", "log_scales", "logit_opacities", "sh0", "shN")
 
-    def __init__(self, params: dict[str, torch.Tensor], sh_degree: int):
+    def __init__(self, params: dict[str, torch.Tensor], sh_degree: int, environment: Environment | None = None):
         missing = set(self.NAMES) - set(params)
         if missing:
             raise Eve3dError(f"Gaussian model lacks parameters: {', '.join(sorted(missing))}")
         self.params = params
         self.sh_degree = sh_degree
+        self.environment = environment
 
     def __len__(self) -> int:
         return self.params["means"].shape[0]
@@ -152,16 +156,24 @@ class GaussianModel:
     def to(self, device: torch.device | str) -> "GaussianModel":
         """The same Gaussians as float32 contiguous tensors on ``device`` (no autograd history)."""
         return GaussianModel({k: v.detach().to(device).float().contiguous() for k, v in self.params.items()},
-                             self.sh_degree)
+                             self.sh_degree, None if self.environment is None else self.environment.to(device))
 
     def save_ply(self, path: Path) -> None:
-        """Standard 3DGS binary PLY, written atomically (:func:`write_ply`)."""
+        """Standard 3DGS binary PLY, written atomically (:func:`write_ply`), and the
+        environment beside it (``environment.npz``; one left by an earlier run is removed)."""
         write_ply(self.params, path)
+        beside = Path(path).with_name(ENVIRONMENT_FILE)
+        if self.environment is not None:
+            self.environment.save(beside)
+        else:
+            beside.unlink(missing_ok=True)
+            beside.with_suffix(".png").unlink(missing_ok=True)
 
     @classmethod
     def load_ply(cls, path: Path) -> "GaussianModel":
-        """Read a 3DGS PLY (:func:`read_ply`)."""
-        return cls(*read_ply(path))
+        """Read a 3DGS PLY (:func:`read_ply`) and the environment beside it, if any."""
+        beside = Path(path).with_name(ENVIRONMENT_FILE)
+        return cls(*read_ply(path), Environment.load(beside) if beside.exists() else None)
 
 
 def write_ply(params: dict[str, torch.Tensor], path: Path) -> None:

@@ -24,19 +24,29 @@ from eve3d.core.scene import Scene
 from eve3d.core.settings import TrainSettings
 from eve3d.core.timing import step_part
 from eve3d.gaussians.densify import Densifier, remove
+from eve3d.gaussians.environment import Environment
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import RenderOutput
+
+
+ENVIRONMENT = "environment"
+"""The extra parameter of the environment's logits."""
 
 
 class TrainState:
     """The optimised and checkpointed state of one training run (module docstring)."""
 
-    def __init__(self, settings: TrainSettings, scene_scale: float, n_views: int, device: torch.device):
+    def __init__(self, settings: TrainSettings, scene_scale: float, n_views: int, device: torch.device,
+                 environment: Environment | None = None):
         self.settings, self.scene_scale, self.n_views, self.device = settings, scene_scale, n_views, device
         self.model: GaussianModel | None = None
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         self.extras: dict[str, torch.nn.Parameter] = {}
         self.extra_optimizers: dict[str, torch.optim.Optimizer] = {}
+        self.environment: Environment | None = None
+        """What lies behind the Gaussians, learnt with them (its logits are an extra)."""
+        if environment is not None:
+            self.set_environment(environment)
         self.buffers: dict[str, torch.Tensor] = {}
         """State that is not optimised but changes during training."""
         self.densifier = Densifier(settings.densify)
@@ -50,7 +60,7 @@ class TrainState:
     def set_model(self, model: GaussianModel) -> None:
         """Adopt ``model`` (fresh Adam states, fresh densification statistics)."""
         params = {k: torch.nn.Parameter(v) for k, v in model.to(self.device).params.items()}
-        self.model = GaussianModel(params, self.settings.sh_degree)
+        self.model = GaussianModel(params, self.settings.sh_degree, self.environment)
         lr = dataclasses.asdict(self.settings.lr)
         lr["means"] *= self.scene_scale
         self.optimizers = {k: adam(p, lr[k]) for k, p in params.items()}
@@ -63,6 +73,13 @@ class TrainState:
         self.extras[name] = p
         self.extra_optimizers[name] = adam(p, lr)
         return p
+
+    def set_environment(self, environment: Environment) -> None:
+        """Learn ``environment`` behind the Gaussians, its logits an extra parameter."""
+        logits = self.add_extra(ENVIRONMENT, environment.logits, self.settings.lr.environment)
+        self.environment = Environment(logits, environment.frame.to(self.device))
+        if self.model is not None:
+            self.model.environment = self.environment
 
     def add_buffer(self, name: str, value: torch.Tensor) -> torch.Tensor:
         """Checkpoint ``value``, a tensor its owner updates in place (restored in place)."""

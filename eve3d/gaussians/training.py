@@ -32,6 +32,7 @@ from eve3d.core.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TRAIN_METRICS_FI
 from eve3d.core.scene import Scene
 from eve3d.core.settings import TrainSettings
 from eve3d.core.timing import phase, step_part
+from eve3d.gaussians.environment import scene_environment
 from eve3d.gaussians.losses import psnr, rgb_loss
 from eve3d.gaussians.model import GaussianModel
 from eve3d.gaussians.render import RenderOutput, render_model
@@ -58,6 +59,17 @@ def initial_points(scene: Scene, count: int, rng: np.random.Generator,
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pts = scene.center + d * scene.radius * rng.random((count, 1)) ** (1 / 3)
     return pts, rng.random((count, 3))
+
+
+def photometric_terms(settings: TrainSettings, view: View, out: RenderOutput,
+                      rgb: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    """What every training stage fits of the photos: L_rgb of ``rgb`` (default: the render's)
+    and the sky loss, ``sky_weight`` × mean(α · beyond): the alpha of the pixels beyond the
+    measured scene, where the environment alone is to be seen."""
+    terms = {"rgb": rgb_loss(out.rgb if rgb is None else rgb, view.image, settings.ssim_weight)}
+    if settings.sky_weight and view.beyond is not None:
+        terms["sky"] = settings.sky_weight * (out.alpha * view.beyond).mean()
+    return terms
 
 
 @step_part("backward")
@@ -91,7 +103,8 @@ class Trainer:
         with phase("read photos"):
             self.views = Views.load(scene, settings, settings.holdout, self.device, tone)
             self.views.coarse = coarse_views(scene, settings, self.device, tone)
-        self.state = TrainState(settings, scene.radius, len(self.views), self.device)
+        self.state = TrainState(settings, scene.radius, len(self.views), self.device,
+                                scene_environment(scene, self.views, settings))
         self.checkpoint = Checkpoint(work_dir, settings, scene, name)
 
     @property
@@ -122,12 +135,11 @@ class Trainer:
 
     @step_part("projection")
     def render(self, view: View, step: int | None = None, **kw) -> RenderOutput:
-        """The current model from a training view, with the SH degree of ``step`` (default: all)."""
-        return render_model(self.model, view.cam, self.settings, None if step is None else self.sh_degree(step), **kw)
-
-    def photometric_terms(self, step: int, view: View, out: RenderOutput) -> dict[str, torch.Tensor]:
-        """The loss of a photometric-only stage: L_rgb."""
-        return {"rgb": rgb_loss(out.rgb, view.image, self.settings.ssim_weight)}
+        """The current model from a training view, with the SH degree of ``step`` (default:
+        all). The environment is fitted only through the view's pixels beyond the measured
+        scene: a surface the Gaussians do not cover yet is not learnt into it."""
+        return render_model(self.model, view.cam, self.settings, None if step is None else self.sh_degree(step),
+                            fit_environment=view.beyond, **kw)
 
     def next_view(self) -> View:
         """Training views in a fresh seeded permutation per pass."""

@@ -1,6 +1,7 @@
 """The report's scene sheets (``scenes/{scene}/{method}.png``): one per scene and method, the
 photo of its first view, the stereo prior, the refined prior D̂ (methods that learn it), the
-rendered depth and normals, the shaded mesh, and the precision / recall error maps (the points
+rendered depth, normals and alpha, the environment at infinity behind the Gaussians (what was
+taken for sky), the shaded mesh, and the precision / recall error maps (the points
 scored, coloured by distance, seen along z) or the held-out renders beside their photos."""
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eve3d.core.layout import HELD_OUT_DIR, MESH_VIEWS_DIR, Layout
+from eve3d.core.layout import ENVIRONMENT_FILE, HELD_OUT_DIR, MESH_VIEWS_DIR, Layout
 from eve3d.report.charts import pyplot, save_figure
 
 HELD_OUT_SHOWN = 8
@@ -57,7 +58,11 @@ def scene_panels(layout: Layout, scene: str, method: str, photo: Path | None, ba
                       ("stereo prior D* (the scene's)", layout.priors(scene, backend) / f"{view}.depth.png"),
                       ("refined prior D̂", layout.learned_priors(scene, method) / f"{view}.depth.png"),
                       ("rendered depth", layout.depth(scene, method) / f"{view}.depth.png"),
-                      ("rendered normals", layout.depth(scene, method) / f"{view}.normal.png")]
+                      ("rendered normals", layout.depth(scene, method) / f"{view}.normal.png"),
+                      ("rendered alpha (black: the environment's, not fused)",
+                       layout.depth(scene, method) / f"{view}.confidence.png")]
+    candidates.append(("environment at infinity (azimuth across, zenith on top)",
+                       folder / Path(ENVIRONMENT_FILE).with_suffix(".png")))
     candidates.append(("shaded mesh", folder / MESH_VIEWS_DIR / "overview.png"))
     panels = [(title, path) for title, path in candidates if path.is_file()]
     held = sorted((folder / HELD_OUT_DIR).glob("*.png"))

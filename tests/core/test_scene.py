@@ -33,3 +33,4 @@ def test_isolated_points_are_two_view_points_far_from_every_reliable_one():
     kept, colors = initial_points(scene, 10, rng, drop_isolated=True)
     assert len(kept) == len(colors) == 102 and not np.isclose(kept, [0.5, 0.5, 2.0]).all(1).any()
     assert len(initial_points(scene, 10, rng)[0]) == 103  # the default keeps every point
+

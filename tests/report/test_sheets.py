@@ -1,8 +1,10 @@
-"""eve3d.report.sheets: the scene sheets' error maps."""
+"""eve3d.report.sheets: the scene sheets' panels and error maps."""
 import numpy as np
 
 from eve3d.evaluate.common import write_error_maps
-from eve3d.report.sheets import ERROR_MAP_BACKGROUND, ERROR_MAP_PIXELS, error_map
+from eve3d.core.fileio import write_image
+from eve3d.core.layout import Layout
+from eve3d.report.sheets import ERROR_MAP_BACKGROUND, ERROR_MAP_PIXELS, error_map, scene_panels
 
 
 def test_error_map_is_seen_from_above_with_y_up(tmp_path):
@@ -24,3 +26,15 @@ def test_error_map_is_seen_from_above_with_y_up(tmp_path):
     rest = image[height // 4 + 2:][shown[height // 4 + 2:]]
     assert len(corner) > 100 and np.all(corner == corner[0]) and corner[0].max() < 0.1  # the roof hides the floor
     assert len(rest) > 1000 and np.all(rest == 1)  # below it, the white floor
+
+
+def test_a_sheet_shows_the_environment_and_the_rendered_alpha(tmp_path):
+    """What was taken for sky: the method's environment map and the first view's rendered
+    alpha (the exported depth's confidence) are panels when the method has them."""
+    layout = Layout(tmp_path / "results")
+    photo = tmp_path / "images" / "000.png"
+    for path in (photo, layout.depth("s", "pgsr") / "000.confidence.png", layout.method("s", "pgsr") / "environment.png"):
+        write_image(path, np.zeros((4, 8, 3), np.uint8))
+    titles = [title for title, _ in scene_panels(layout, "s", "pgsr", photo, "sgbm")]
+    assert titles == ["photo", "rendered alpha (black: the environment's, not fused)",
+                      "environment at infinity (azimuth across, zenith on top)"]

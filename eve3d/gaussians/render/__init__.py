@@ -19,7 +19,7 @@ previews, exported depth, the stereo pairs' right views, the nvs protocol) calls
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import torch
@@ -38,7 +38,7 @@ class RenderOutput:
     """What one camera sees. H, W: image size; N: number of Gaussians."""
 
     rgb: torch.Tensor
-    """(H, W, C) colours composited over the background."""
+    """(H, W, C) colours composited over the background (a colour, or the environment at infinity)."""
     alpha: torch.Tensor
     """(H, W) accumulated opacity 1 − T."""
     normal: torch.Tensor
@@ -51,6 +51,9 @@ class RenderOutput:
     """(H, W) alpha-normalised expected z, Σ w·z / alpha; 0 where alpha = 0."""
     extras: torch.Tensor | None
     """(H, W, E) blended extra channels (no background), when extras were given."""
+    environment: torch.Tensor | None
+    """(H, W, C) what lies behind each pixel (the environment's image, or the background
+    colour); None for a render without colours."""
     radii: torch.Tensor
     """(N, 2) int32 screen-space half extents; 0 for culled Gaussians."""
     means2d: torch.Tensor
@@ -82,7 +85,8 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
 
     means (N, 3) world centres; quats (N, 4) rotations (w, x, y, z), any norm; scales (N, 3)
     standard deviations (activated); opacities (N,) in [0, 1]; colors (N, C) features
-    composited with the background (C, default zeros); extras (N, E) optional further
+    composited over the background: (C,) one colour (default zeros), or (H, W, C) per pixel
+    (an environment's image), as C + (1 − α)·background; extras (N, E) optional further
     channels. ``max_pairs`` bounds the torch backend's pairs per band of rows (memory).
     ``antialiased``: gsplat's antialiased mode (Mip-Splatting's 2D filter): each opacity is
     scaled by √(det Σ2D / det(Σ2D + 0.3 I)), so the 0.3 px² dilation no longer makes small or
@@ -110,6 +114,7 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     image, alpha, radii, means2d, absgrad_buf, n_pairs = _rasterize(
         backend, proj, means, quats, scales, opacities, features, cam, near, far, absgrad, antialiased, max_pairs)
 
+    background = background.expand(*alpha.shape, n_colors)
     rgb = image[..., :n_colors] + (1 - alpha)[..., None] * background
     normal = image[..., n_colors:n_colors + 3]
     distance = image[..., n_colors + 3]
@@ -124,6 +129,7 @@ def render(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opaci
     return RenderOutput(rgb=rgb, alpha=alpha, normal=normal, distance=distance, depth=depth,
                         depth_expected=depth_expected,
                         extras=image[..., n_colors + 5:] if extras is not None else None,
+                        environment=background if n_colors else None,
                         radii=radii, means2d=means2d, absgrad=absgrad_buf, n_pairs=n_pairs, backend=backend)
 
 
@@ -157,10 +163,12 @@ def _rasterize(backend: str, proj: Projected | None, means: torch.Tensor, quats:
 
 def render_model(model: GaussianModel, camera: Camera | CameraTensors, rendering: RenderSettings,
                  sh_degree: int | None = None, *, colors: torch.Tensor | None = None, geometry_only: bool = False,
-                 **kw) -> RenderOutput:
+                 fit_environment: torch.Tensor | None = None, **kw) -> RenderOutput:
     """Render ``model`` from ``camera`` as ``rendering`` says (background, backend,
     antialiasing): the one way every stage renders a model, so a trained model renders
-    elsewhere (the right views, the depth maps, the nvs protocol) as it was trained.
+    elsewhere (the right views, the depth maps, the nvs protocol) as it was trained. Behind
+    the Gaussians lies the model's environment at infinity when it has one, else
+    ``rendering.background``.
 
     Colours: the model's SH up to ``sh_degree`` (default: all) seen from the camera centre,
     unless ``colors`` (N, C) are given. A :class:`Camera` gives its centre from its float64
@@ -168,20 +176,30 @@ def render_model(model: GaussianModel, camera: Camera | CameraTensors, rendering
     ``geometry_only``: no colours at all (``rgb`` is (H, W, 0)), for a render whose depth,
     normals and alpha are all that is used (PGSR's neighbour view): no SH evaluation, three
     channels fewer to composite and differentiate. ``kw`` goes to :func:`render`
-    (``extras``, ``absgrad``, ...)."""
+    (``extras``, ``absgrad``, ...). ``fit_environment`` (H, W) bool: the pixels through
+    which a loss fits the environment; the others see it without a gradient to it."""
     p = model.params
     means = p["means"]
-    background = torch.tensor(rendering.background, dtype=means.dtype, device=means.device)
+    if isinstance(camera, CameraTensors):
+        centre = -camera.R.T @ camera.t
+    else:  # the centre from the float64 pose
+        centre = torch.tensor(camera.center, dtype=means.dtype, device=means.device)
+        camera = CameraTensors.from_camera(camera, means.dtype, means.device)
     if geometry_only:
         colors, background = means.new_zeros(len(model), 0), means.new_zeros(0)
-    elif colors is None:
-        if isinstance(camera, CameraTensors):
-            centre = -camera.R.T @ camera.t
-        else:
-            centre = torch.tensor(camera.center, dtype=means.dtype, device=means.device)
-        colors = model.colors(centre, sh_degree)
-    return render(means, p["quats"], model.scales, model.opacities, colors, camera, background=background,
-                  backend=rendering.backend, antialiased=rendering.antialiased, **kw)
+    else:
+        if colors is None:
+            colors = model.colors(centre, sh_degree)
+        background = torch.tensor(rendering.background, dtype=means.dtype, device=means.device)
+    environment = model.environment if colors.shape[1] == 3 else None
+    if environment is not None:
+        background = background.new_zeros(3)  # composited below, where the Gaussians leave it seen
+    out = render(means, p["quats"], model.scales, model.opacities, colors, camera, background=background,
+                 backend=rendering.backend, antialiased=rendering.antialiased, **kw)
+    if environment is None:
+        return out
+    behind = environment.behind(camera, out.alpha, fit_environment)
+    return replace(out, rgb=out.rgb + (1 - out.alpha)[..., None] * behind, environment=behind)
 
 
 def _auto_backend(means: torch.Tensor) -> str:

@@ -34,6 +34,7 @@ class CameraTensors:
     height: int
     _centres: torch.Tensor | None = field(default=None, init=False, repr=False, compare=False)
     _rays: torch.Tensor | None = field(default=None, init=False, repr=False, compare=False)
+    _world_rays: torch.Tensor | None = field(default=None, init=False, repr=False, compare=False)
 
     @classmethod
     def from_camera(cls, camera, dtype: torch.dtype = torch.float32, device=None) -> "CameraTensors":
@@ -76,6 +77,12 @@ class CameraTensors:
         if self._rays is None:
             self._rays = self.rays_at(self.pixel_centres())
         return self._rays
+
+    def world_rays(self) -> torch.Tensor:
+        """(H, W, 3) the same rays in world coordinates, Rᵀ r (computed once, as :meth:`rays`)."""
+        if self._world_rays is None:
+            self._world_rays = self.rays() @ self.R
+        return self._world_rays
 
 
 def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
