@@ -314,6 +314,9 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
         with phase("read priors"):
             loaded = load_priors(Path(priors_dir), scene.cameras, views.cameras, trainer.device,
                                  settings.prior_normal_span)
+        for confidence, view in zip(loaded.confidence, views):
+            if view.beyond is not None:  # the environment explains these pixels: no surface to measure
+                confidence &= ~view.beyond
         if settings.init == "priors":
             points, colors = prior_points(loaded, views.cameras, views.images, views.train_ids,
                                           settings.init_prior_points, rng)

@@ -474,3 +474,22 @@ def test_coarse_steps_take_every_term_and_prior_at_the_coarse_size(tiny_scene, t
     assert shapes == [(h // 2, w // 2)] * 30 + [(h, w)] * 10
     assert len(checked) == 40 and all(sizes == {(h, w)} for sizes in checked)
     assert all(v.shape == (h, w) for v in _log_depths(trainer).values())
+
+
+def test_a_prior_beyond_the_measured_scene_is_not_trusted(tiny_sky_scene, tmp_path):
+    # a matcher that finds the sky textured gives it a finite, confident depth everywhere
+    exact, sky = tmp_path / "oracle", tmp_path / "sky"
+    priors_from_mesh(tiny_sky_scene, exact, preview=False)
+    sky.mkdir()
+    for cam in tiny_sky_scene.cameras:
+        m = load_maps(exact / f"{cam.view_id}.npz")
+        save_maps(sky / f"{cam.view_id}.npz", preview=False, depth=np.where(m["depth"] > 0, m["depth"], 10.0),
+                  confidence=np.ones_like(m["depth"]), normal=m["normal"])
+    run = setup_joint(tiny_sky_scene, tmp_path / "run", _eve3d(iterations=1), sky)
+    views = run.trainer.views
+    beyond = sum(int(v.beyond.sum()) for v in views)
+    assert beyond > 0.1 * sum(v.beyond.numel() for v in views)  # the sky fills a good part of the photos
+    assert not any((c & v.beyond).any() for c, v in zip(run.priors.star.confidence, views))
+    surface = [torch.from_numpy(load_maps(exact / f"{v.camera.view_id}.npz")["depth"] > 0) for v in views]
+    kept = sum(int((c & s).sum()) for c, s in zip(run.priors.star.confidence, surface))
+    assert kept > 0.95 * sum(int(s.sum()) for s in surface)  # the object's priors stay

@@ -62,12 +62,13 @@ def logit(colour: torch.Tensor) -> torch.Tensor:
 class Environment:
     """Colour at infinity by direction (module docstring). ``logits`` (h, w, 3): the logits of
     the texels' colours, row 0 the map's zenith, columns the azimuth from −π to π; ``frame``
-    (3, 3) world-to-map rotation."""
+    (3, 3) world-to-map rotation; ``seen`` (h, w) bool: the texels a training photo showed
+    beyond the scene (None: all of them)."""
 
-    def __init__(self, logits: torch.Tensor, frame: torch.Tensor):
+    def __init__(self, logits: torch.Tensor, frame: torch.Tensor, seen: torch.Tensor | None = None):
         if logits.ndim != 3 or logits.shape[2] != 3 or logits.shape[1] != 2 * logits.shape[0]:
             raise Eve3dError(f"environment map must be (h, 2h, 3), got {tuple(logits.shape)}")
-        self.logits, self.frame = logits, frame.to(logits)
+        self.logits, self.frame, self.seen = logits, frame.to(logits), seen
 
     @property
     def colours(self) -> torch.Tensor:
@@ -82,7 +83,22 @@ class Environment:
 
     def to(self, device: torch.device | str) -> "Environment":
         """The same map on ``device``, float32, without autograd history."""
-        return Environment(self.logits.detach().to(device).float().contiguous(), self.frame.detach().to(device))
+        return Environment(self.logits.detach().to(device).float().contiguous(), self.frame.detach().to(device),
+                           None if self.seen is None else self.seen.to(device))
+
+    def filled(self) -> "Environment":
+        """The map to show views it was not trained on: each texel no training photo showed
+        takes the colour of the nearest one that it did (a held-out view's sky in a direction
+        between the training views' was black: 1.6 dB of monstree's held-out PSNR). While
+        training those texels keep the background, behind the surfaces (:meth:`from_photos`)."""
+        if self.seen is None or not self.seen.any() or self.seen.all():
+            return self
+        from scipy.ndimage import distance_transform_edt
+
+        _, (rows, columns) = distance_transform_edt(~self.seen.cpu().numpy(), return_indices=True)
+        logits = self.logits.detach()[torch.from_numpy(rows).to(self.logits.device),
+                                      torch.from_numpy(columns).to(self.logits.device)]
+        return Environment(logits, self.frame)
 
     @classmethod
     def from_photos(cls, photos: list[tuple[CameraTensors, torch.Tensor, torch.Tensor]], height: int,
@@ -110,6 +126,7 @@ class Environment:
             distance, (rows, columns) = distance_transform_edt(~seen, return_indices=True)
             near = torch.from_numpy(distance <= FILL)
             env.logits[near] = logit(mean[torch.from_numpy(rows), torch.from_numpy(columns)][near])
+            env.seen = near
         return env
 
     def coordinates(self, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

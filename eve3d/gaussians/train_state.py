@@ -77,7 +77,7 @@ class TrainState:
     def set_environment(self, environment: Environment) -> None:
         """Learn ``environment`` behind the Gaussians, its logits an extra parameter."""
         logits = self.add_extra(ENVIRONMENT, environment.logits, self.settings.lr.environment)
-        self.environment = Environment(logits, environment.frame.to(self.device))
+        self.environment = Environment(logits, environment.frame.to(self.device), environment.seen)
         if self.model is not None:
             self.model.environment = self.environment
 

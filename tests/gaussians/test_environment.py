@@ -170,3 +170,14 @@ def test_training_explains_the_sky_by_the_environment_and_no_gaussian_paints_it(
     assert fused < 0.005
     assert (tmp_path / "environment" / "environment.npz").is_file()
     assert not (tmp_path / "constant" / "environment.npz").exists()
+
+
+def test_a_view_it_was_not_trained_on_sees_the_nearest_shown_colour_not_the_background():
+    logits = torch.full((4, 8, 3), -9.0)  # the background (black) wherever no photo showed the sky
+    seen = torch.zeros(4, 8, dtype=torch.bool)
+    seen[1, 2:4], logits[1, 2], logits[1, 3] = True, 1.0, 2.0
+    env = Environment(logits, torch.eye(3), seen)
+    filled = env.filled()
+    assert torch.equal(filled.logits[seen], logits[seen])  # what was shown stays
+    assert torch.equal(filled.logits[0, 2], logits[1, 2]) and torch.equal(filled.logits[3, 7], logits[1, 3])
+    assert env.filled().seen is None and Environment(logits, torch.eye(3)).filled().logits is logits
