@@ -90,7 +90,7 @@ class Environment:
         """The map to show views it was not trained on: each texel no training photo showed
         takes the colour of the nearest one that it did (a held-out view's sky in a direction
         between the training views' was black: 1.6 dB of monstree's held-out PSNR). While
-        training those texels keep the background, behind the surfaces (:meth:`from_photos`)."""
+        training those texels keep the background, behind the surfaces (:func:`photo_environment`)."""
         if self.seen is None or not self.seen.any() or self.seen.all():
             return self
         from scipy.ndimage import distance_transform_edt
@@ -99,35 +99,6 @@ class Environment:
         logits = self.logits.detach()[torch.from_numpy(rows).to(self.logits.device),
                                       torch.from_numpy(columns).to(self.logits.device)]
         return Environment(logits, self.frame)
-
-    @classmethod
-    def from_photos(cls, photos: list[tuple[CameraTensors, torch.Tensor, torch.Tensor]], height: int,
-                    frame: np.ndarray, background) -> "Environment":
-        """The map that explains what ``photos`` ((camera, (H, W, 3) image, (H, W) mask)
-        triples) show in their masked pixels (the rays beyond the measured scene): each texel
-        the mean colour of the masked pixels whose ray falls in it, or of the nearest such
-        texel up to ``FILL`` texels away; the ``background`` colour elsewhere, as behind a
-        surface (a sky colour there would explain an uncovered pale surface, and the
-        Gaussians would not grow onto it). A sky is then explained from the first step,
-        before densification could grow Gaussians to paint it."""
-        from scipy.ndimage import distance_transform_edt
-
-        env = cls.constant(background, height, frame)
-        h, w = env.logits.shape[:2]
-        total, count = torch.zeros(h * w, 3), torch.zeros(h * w)
-        for cam, image, mask in photos:
-            row, column = env.texel(cam.rays().cpu()[mask.cpu()] @ cam.R.cpu().float())
-            index = row.clamp(0, h - 1) * w + column
-            total.index_add_(0, index, image.detach().cpu().float()[mask.cpu()])
-            count.index_add_(0, index, torch.ones(len(index)))
-        seen = (count > 0).reshape(h, w).numpy()
-        if seen.any():
-            mean = (total / count.clamp_min(1)[:, None]).reshape(h, w, 3)
-            distance, (rows, columns) = distance_transform_edt(~seen, return_indices=True)
-            near = torch.from_numpy(distance <= FILL)
-            env.logits[near] = logit(mean[torch.from_numpy(rows), torch.from_numpy(columns)][near])
-            env.seen = near
-        return env
 
     def coordinates(self, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The map's (row, column) coordinates of world ``directions`` (..., 3), texel centres
@@ -198,11 +169,40 @@ class Environment:
         return cls(torch.from_numpy(logits).float(), torch.from_numpy(frame).float())
 
 
+def photo_environment(photos: list[tuple[CameraTensors, torch.Tensor, torch.Tensor]], height: int,
+                      frame: np.ndarray, background) -> Environment:
+    """The map that explains what ``photos`` ((camera, (H, W, 3) image, (H, W) mask)
+    triples) show in their masked pixels (the rays beyond the measured scene): each texel
+    the mean colour of the masked pixels whose ray falls in it, or of the nearest such
+    texel up to ``FILL`` texels away; the ``background`` colour elsewhere, as behind a
+    surface (a sky colour there would explain an uncovered pale surface, and the
+    Gaussians would not grow onto it). A sky is then explained from the first step,
+    before densification could grow Gaussians to paint it."""
+    from scipy.ndimage import distance_transform_edt
+
+    env = Environment.constant(background, height, frame)
+    h, w = env.logits.shape[:2]
+    total, count = torch.zeros(h * w, 3), torch.zeros(h * w)
+    for cam, image, mask in photos:
+        row, column = env.texel(cam.rays().cpu()[mask.cpu()] @ cam.R.cpu().float())
+        index = row.clamp(0, h - 1) * w + column
+        total.index_add_(0, index, image.detach().cpu().float()[mask.cpu()])
+        count.index_add_(0, index, torch.ones(len(index)))
+    seen = (count > 0).reshape(h, w).numpy()
+    if seen.any():
+        mean = (total / count.clamp_min(1)[:, None]).reshape(h, w, 3)
+        distance, (rows, columns) = distance_transform_edt(~seen, return_indices=True)
+        near = torch.from_numpy(distance <= FILL)
+        env.logits[near] = logit(mean[torch.from_numpy(rows), torch.from_numpy(columns)][near])
+        env.seen = near
+    return env
+
+
 def scene_environment(scene: Scene, views: Views, settings: TrainSettings) -> Environment | None:
     """The environment a training stage learns behind the Gaussians of ``scene``: each of
     ``views`` (and its coarse views) marks its pixels beyond the measured scene
     (``View.beyond``, the rays that miss ``measured_hull`` grown by ``settings.sky_margin``),
-    and the map starts as what the training views show there (:meth:`Environment.from_photos`).
+    and the map starts as what the training views show there (:func:`photo_environment`).
     None where nothing lies beyond (a room seen from inside, no sparse points) or
     ``settings.environment`` is 0: the constant ``background`` then."""
     hull = measured_hull(scene, settings.sky_margin) if settings.environment else None
@@ -214,4 +214,4 @@ def scene_environment(scene: Scene, views: Views, settings: TrainSettings) -> En
                 view.beyond = torch.from_numpy(hull.missed(view.camera)).to(view.image.device)
         frame = up_frame(np.stack([cam.R for cam in scene.cameras]))
         photos = [(views[i].cam, views[i].image, views[i].beyond) for i in views.train_ids]
-        return Environment.from_photos(photos, settings.environment, frame, settings.background)
+        return photo_environment(photos, settings.environment, frame, settings.background)

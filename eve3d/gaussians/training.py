@@ -198,8 +198,7 @@ class Trainer:
         arranges them, given ``train`` and ``held_out``), previews with the ``depth`` output,
         and the checkpoint removed. Returns the metrics."""
         model, views = self.model, self.views
-        if model.environment is not None:  # from here on it shows views it was not trained on
-            model.environment = model.environment.filled()
+        model.environment = model.environment and model.environment.filled()  # it shows new views from here on
         with phase("save"):
             model.save_ply(out_dir / MODEL_FILE)
         beside_model()
