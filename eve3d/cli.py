@@ -357,7 +357,8 @@ def _add_data_parsers(sub) -> None:
 
 def _add_stereo_parsers(sub) -> None:
     from eve3d.core.settings import RenderSettings
-    from eve3d.core.settings_stereo import PRIOR_BACKENDS, BaselineSettings, MatchCheck, SgbmSettings, StereoSettings
+    from eve3d.core.settings_stereo import (PRIOR_BACKENDS, BaselineSettings, MatchCheck, RealPairSettings, SgbmSettings,
+                                           StereoSettings)
 
     s = _stage(sub, "stereo-render", _cmd_stereo_render,
                "right views of virtual stereo pairs, rendered by the pretrained model",
@@ -366,7 +367,8 @@ def _add_stereo_parsers(sub) -> None:
     s.add_argument("--model", required=True, help="pretrained 3DGS PLY (pretrain/point_cloud.ply)")
     s.add_argument("--out", required=True, help="output folder: right/{view}.png and pairs.json (replaced atomically)")
     s = _stage(sub, "stereo-depth", _cmd_stereo_depth, "depth priors per view ({view}.npz + PNG previews)",
-               (StereoSettings, "stereo", ("backend",)), (SgbmSettings, "stereo"), (MatchCheck, "stereo"))
+               (StereoSettings, "stereo", ("backend",)), (RealPairSettings, "stereo"), (SgbmSettings, "stereo"),
+               (MatchCheck, "stereo"))
     s.add_argument("--scene", required=True, help="posed dataset folder")
     s.add_argument("--out", required=True, help="output folder (replaced atomically)")
 

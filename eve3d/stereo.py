@@ -26,10 +26,11 @@ from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import RenderSettings
 from eve3d.core.settings_fields import pick
-from eve3d.core.settings_stereo import PRIOR_BACKENDS, BaselineSettings, MatchCheck, StereoSettings
+from eve3d.core.settings_stereo import PRIOR_BACKENDS, BaselineSettings, MatchCheck, RealPairSettings, StereoSettings
 from eve3d.core.timing import phase
 from eve3d.gaussians.neighbours import select_neighbours
 from eve3d.priors.matching import grey, local_std
+from eve3d.priors.real_pairs import RectifiedPair, agreed_depth, pair_candidates
 
 
 def right_camera(cam: Camera, baseline: float) -> Camera:
@@ -218,41 +219,42 @@ def lit(photo: np.ndarray, min_light: float) -> np.ndarray:
 
 def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
                   matcher: Callable[[np.ndarray, np.ndarray, tuple[float, float]], tuple[np.ndarray, np.ndarray]],
-                  name: str, preview: bool = True, check: MatchCheck | None = None) -> None:
+                  name: str, preview: bool = True, check: MatchCheck | None = None,
+                  pairs: RealPairSettings | None = None) -> None:
     """``stereo_depth`` for a disparity backend: ``matcher(left, right, (min, max))`` gives
-    the left disparity and its confidence on the pair (the photo at the pair's scale, padded
-    on the left by the view's margin, and its right view); the confidence passes through
-    ``check``; depth Z = fx·B/d and normals from the depth are written for every view
-    (``{view}.npz`` at the pair's size, and PNG previews; a stage reading them resamples them
-    to its own size)."""
+    the left disparity and its confidence on a pair (the photo at the pair's scale, padded
+    on the left by the pair's margin, and its right image): its virtual right view, or its
+    real neighbours rectified (``pairs``); the confidence passes through ``check``; depth
+    Z = fx·B/d and normals from the depth are written for every view (``{view}.npz`` at the
+    pair's size, and PNG previews; a stage reading them resamples them to its own size)."""
     import torch
 
     from eve3d.gaussians.geometry import depth_to_normal
     from eve3d.gaussians.render.projection import CameraTensors
 
     views, tone, cameras = read_pairs(stereo_dir, scene)
-    check = check or MatchCheck()
-    neighbours = select_neighbours(scene, check.mv_neighbours)
+    check, pairs = check or MatchCheck(), pairs or RealPairSettings()
+    neighbours = select_neighbours(scene, max(check.mv_neighbours, 2 * pairs.real_neighbours))
+    real = pair_candidates(scene, neighbours, pairs.real_neighbours) if pairs.pairs != "virtual" else None
     # neighbours are mostly the views around: a few decoded photos serve several views
-    photo = lru_cache(maxsize=2 * check.mv_neighbours + 2)(lambda j: tone[read_view(cameras[j])])
+    photo = lru_cache(maxsize=max(map(len, neighbours), default=0) + 2)(lambda j: tone[read_view(cameras[j])])
     with atomic_dir(out_dir) as tmp:
-        for i, (cam, near) in enumerate(zip(tqdm(cameras, desc=name, unit="view"), neighbours)):
+        for i, cam in enumerate(tqdm(cameras, desc=name, unit="view")):
             pair = views[cam.view_id]
-            margin, search = int(pair["margin"]), (float(pair["min_disparity"]), float(pair["max_disparity"]))
             with phase("read photos"):
                 left = photo(i)
-            right_path = stereo_dir / "right" / f"{cam.view_id}.png"
-            right = read_image(right_path)
-            if right.shape[0] != left.shape[0] or right.shape[1] != left.shape[1] + margin:
-                raise Eve3dError(f"{right_path}: {right.shape[1]}×{right.shape[0]}, expected the photo's "
-                                 f"{left.shape[1]}×{left.shape[0]} plus {margin} columns on the left")
-            padded = np.pad(left, ((0, 0), (margin, 0)) + ((0, 0),) * (left.ndim - 2))
-            with phase("match"):
-                disp, confidence = (m[:, margin:] for m in matcher(padded, right, search))
-            with phase("checks"):
-                confidence = checked_confidence(left, right, disp, confidence, search, margin, check,
-                                                left_alpha(stereo_dir, cam) if check.min_alpha > 0 else None)
-            depth = np.where(disp > 0, cam.fx * float(pair["baseline"]) / np.maximum(disp, 1e-6), 0).astype(np.float32)
+            alpha = left_alpha(stereo_dir, cam) if check.min_alpha > 0 else None
+            if pairs.pairs != "real":
+                depth, confidence = virtual_prior(cam, left, stereo_dir, pair, matcher, check, alpha)
+            if real is not None:
+                witness, trust = real_prior(cam, left, [(cameras[j], photo(j)) for j in real[i]], pair, matcher,
+                                            check, pairs, alpha)
+                if pairs.pairs == "real":
+                    depth, confidence = witness, trust
+                else:
+                    agree = (trust > 0) & (np.abs(depth - witness) <= pairs.real_tolerance * witness)
+                    confidence = np.where(agree, confidence, 0).astype(np.float32)
+            near = neighbours[i][:check.mv_neighbours]
             if check.mv_ncc_threshold > 0 and len(near) >= check.mv_views:
                 with phase("read photos"):
                     others = [(cameras[j], photo(j)) for j in near]
@@ -264,6 +266,54 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
                 normal = depth_to_normal(torch.from_numpy(depth), CameraTensors.from_camera(cam)).numpy()
                 save_maps(tmp / f"{cam.view_id}.npz", preview=preview, depth=depth,
                           confidence=confidence.astype(np.float32), normal=normal)
+
+
+def virtual_prior(cam: Camera, left: np.ndarray, stereo_dir: Path, pair: dict, matcher, check: MatchCheck,
+                  alpha: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Depth and confidence of ``cam``'s photo ``left`` matched against its virtual right view."""
+    margin, search = int(pair["margin"]), (float(pair["min_disparity"]), float(pair["max_disparity"]))
+    right_path = stereo_dir / "right" / f"{cam.view_id}.png"
+    right = read_image(right_path)
+    if right.shape[0] != left.shape[0] or right.shape[1] != left.shape[1] + margin:
+        raise Eve3dError(f"{right_path}: {right.shape[1]}×{right.shape[0]}, expected the photo's "
+                         f"{left.shape[1]}×{left.shape[0]} plus {margin} columns on the left")
+    padded = np.pad(left, ((0, 0), (margin, 0)) + ((0, 0),) * (left.ndim - 2))
+    with phase("match"):
+        disp, confidence = (m[:, margin:] for m in matcher(padded, right, search))
+    with phase("checks"):
+        confidence = checked_confidence(left, right, disp, confidence, search, margin, check, alpha)
+    depth = np.where(disp > 0, cam.fx * float(pair["baseline"]) / np.maximum(disp, 1e-6), 0).astype(np.float32)
+    return depth, confidence
+
+
+def real_prior(cam: Camera, left: np.ndarray, others: list[tuple[Camera, np.ndarray]], pair: dict, matcher,
+               check: MatchCheck, settings: RealPairSettings, alpha: np.ndarray | None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Depth and confidence of ``cam``'s photo ``left`` from its real neighbours ``others``
+    (camera, photo): each pair rectified, matched and checked, its depth carried back; kept
+    where ``settings.real_views`` pairs agree. The depth range searched is the virtual
+    pair's (the pretrained model's, with its margins)."""
+    near = cam.fx * float(pair["baseline"]) / float(pair["max_disparity"])
+    far = cam.fx * float(pair["baseline"]) / max(float(pair["min_disparity"]), 1e-6)
+    depths, confidences = [], []
+    for other, image in others:
+        with phase("rectify"):
+            rect = RectifiedPair.build(cam, left, other, image, (near, far), settings.real_max_disparity)
+        padded = np.pad(rect.left, ((0, 0), (rect.margin, 0)) + ((0, 0),) * (left.ndim - 2))
+        with phase("match"):
+            disp, confidence = (m[:, rect.margin:] for m in matcher(padded, rect.right, rect.search))
+        with phase("checks"):
+            confidence = checked_confidence(rect.left, rect.right, disp, confidence, rect.search, rect.margin, check)
+        depth, confidence = rect.carried_back(disp, confidence)
+        depths.append(depth)
+        confidences.append(confidence)
+    if len(depths) < settings.real_views:
+        return np.zeros(left.shape[:2], np.float32), np.zeros(left.shape[:2], np.float32)
+    depth, confidence = agreed_depth(np.stack(depths), np.stack(confidences), settings.real_views,
+                                     settings.real_tolerance)
+    if alpha is not None and check.min_alpha > 0:
+        confidence = np.where(rendered_surface(alpha, check.min_alpha, check.edge_window), confidence, 0)
+    return depth, confidence.astype(np.float32)
 
 
 PAIR_KEYS = {"baseline", "min_disparity", "max_disparity", "margin"}
@@ -343,7 +393,7 @@ def run_stereo_depth(settings: StereoSettings, *, scene: Path, out: Path, stereo
         with phase("load model"):
             matcher = module.matcher(settings)
         stereo_priors(loaded, Path(stereo), out, matcher, backend.label, preview=preview,
-                      check=pick(MatchCheck, settings))
+                      check=pick(MatchCheck, settings), pairs=pick(RealPairSettings, settings))
     print(f"wrote {len(loaded.cameras)} depth maps to {out}")
 
 

@@ -237,12 +237,20 @@ def dim(image: np.ndarray) -> np.ndarray:
     return (20 + image.astype(np.float32) * 5 / 255).round().astype(np.uint8)
 
 
+def virtual_pairs():
+    """``stereo.pairs: virtual``: the tests of a backend on the right views a model renders,
+    whose figures were measured on those."""
+    from eve3d.core.settings_stereo import RealPairSettings
+
+    return RealPairSettings(pairs="virtual")
+
+
 def sgbm_priors(scene, stereo_dir: Path, out: Path, preview: bool = True, check=None) -> None:
-    """``stereo_depth --backend sgbm`` with the default settings and ``check``."""
+    """``stereo_depth --backend sgbm`` on the virtual pairs, with the default settings and ``check``."""
     from eve3d.priors.sgbm import SgbmStereo
     from eve3d.stereo import stereo_priors
 
-    stereo_priors(scene, stereo_dir, out, SgbmStereo(), "SGBM", preview=preview, check=check)
+    stereo_priors(scene, stereo_dir, out, SgbmStereo(), "SGBM", preview=preview, check=check, pairs=virtual_pairs())
 
 
 def plane_pair(tilt_deg: float, disparity: float, margin: int = 48) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:

@@ -221,3 +221,59 @@ def test_neighbour_photos_agree_with_the_exact_depth_and_not_with_a_wrong_one(ob
 
     assert agree(depth) > 0.85  # measured 0.92
     assert agree(1.08 * depth) < 0.45  # measured 0.35
+
+
+@pytest.mark.parametrize("max_disparity, density, wrong", [(128.0, 0.6, 0.005), (48.0, 0.5, 0.03)])
+def test_real_pairs_carry_the_exact_depth_back_to_the_view(object_scene, max_disparity, density, wrong):
+    """A view and its real neighbours, rectified with the known poses and matched by SGBM:
+    the depth carried back to the view is the ray-cast depth to a fraction of a percent, with
+    no model in between, and the empty background gets none; matched at a smaller scale too,
+    where the pair's range passes ``stereo.real_max_disparity`` (48 px: about half size)."""
+    from eve3d.core.fileio import read_image
+    from eve3d.core.raycast import MeshRaycaster
+    from eve3d.core.settings_stereo import RealPairSettings
+    from eve3d.gaussians.neighbours import select_neighbours
+    from eve3d.priors.real_pairs import pair_candidates
+    from eve3d.priors.sgbm import SgbmStereo
+    from eve3d.stereo import real_prior
+
+    cams = object_scene.cameras
+    chosen = pair_candidates(object_scene, select_neighbours(object_scene, 6), 3)
+    i = 0
+    assert len(chosen[i]) >= 2
+    hits = MeshRaycaster.from_file(object_scene.gt_mesh).cast(cams[i])
+    exact = np.where(hits.valid, hits.depth, 0)
+    near, far = np.percentile(exact[hits.valid], [1, 99])
+    pair = {"baseline": 1.0, "min_disparity": 0.75 * cams[i].fx / far, "max_disparity": 1.25 * cams[i].fx / near}
+    depth, confidence = real_prior(cams[i], read_image(cams[i].image_path),
+                                   [(cams[j], read_image(cams[j].image_path)) for j in chosen[i]], pair,
+                                   SgbmStereo(), MatchCheck(), RealPairSettings(real_max_disparity=max_disparity), None)
+    used = (confidence > 0) & hits.valid
+    error = depth[used] / exact[used] - 1
+    assert used.sum() > density * hits.valid.sum()  # measured 0.68 at 128 px, 0.62 at 48 px
+    assert abs(np.median(error)) < 0.001  # measured 0.016 %, −0.019 %
+    assert np.mean(np.abs(error) > 0.05) < wrong  # measured 0.13 %, 1.7 %
+    assert (confidence > 0)[~hits.valid].mean() < 0.002  # measured 0.06 %
+
+
+def test_real_pairs_agree_by_majority():
+    """Two pairs that disagree on a pixel leave it without a prior; of three, the two that
+    agree give their mean; one pair alone keeps its depth."""
+    from eve3d.priors.real_pairs import agreed_depth
+
+    depths = np.array([[2.0, 2.0, 2.0, 2.0], [2.1, 2.01, 2.3, 0.0], [0.0, 0.0, 2.02, 0.0]])[:, None, :]
+    confidences = (depths > 0).astype(np.float32)
+    depth, confidence = agreed_depth(depths, confidences, 1, 0.01)
+    np.testing.assert_allclose(depth[0], [0, 2.005, 2.01, 2.0])
+    assert (confidence[0] > 0).tolist() == [False, True, True, True]
+    depth, confidence = agreed_depth(depths, confidences, 2, 0.01)
+    assert (confidence[0] > 0).tolist() == [False, True, True, False]
+
+
+def test_real_pair_settings_are_checked():
+    from eve3d.core.settings_stereo import RealPairSettings
+
+    with pytest.raises(Eve3dError, match="stereo.real_views"):
+        RealPairSettings(real_views=4, real_neighbours=3)
+    with pytest.raises(Eve3dError, match="stereo.pairs"):
+        RealPairSettings(pairs="rendered")

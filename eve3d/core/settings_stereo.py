@@ -15,6 +15,7 @@ SGM_MODES = {"hh": "STEREO_SGBM_MODE_HH", "hh4": "STEREO_SGBM_MODE_HH4", "3way":
 """``stereo.sgm_mode`` → OpenCV's StereoSGBM mode: 8 directions in two passes (``hh``), 4
 (``hh4``), or the single-pass variants (``3way``, ``sgbm``)."""
 BASELINE_MODES = ("disparity", "radius")
+PAIR_SOURCES = ("virtual", "real", "both")
 
 
 @dataclass(frozen=True)
@@ -173,6 +174,36 @@ class MatchCheck(Checked):
 
 
 @dataclass
+class RealPairSettings(Checked):
+    """Which stereo pairs a backend matches (``eve3d.priors.real_pairs``)."""
+
+    SECTION: ClassVar[str] = "stereo"
+    pairs: str = setting("real", choices=PAIR_SOURCES)
+    """``real``: the photo and its real neighbours, rectified with the known poses (the
+    default: its errors are the matcher's, not the pretrained model's, docs/priors.md);
+    ``virtual``: the photo and a right view the pretrained model renders (the paper's);
+    ``both``: the virtual prior where the real pairs' depth witnesses it (within ``real_tolerance``)."""
+    real_neighbours: int = setting(3, ge=1)
+    """Real neighbours matched per view: the best ranked (``eve3d.gaussians.neighbours``) that
+    rectify well."""
+    real_views: int = setting(1, ge=1)
+    """Real pairs whose depths must agree (within ``real_tolerance`` of their median) for a
+    confident real prior; more than half of the pairs that match a pixel must agree in any case."""
+    real_tolerance: float = setting(0.01, gt=0)
+    """Relative depth difference within which two depths agree."""
+    real_max_disparity: float = setting(128.0, gt=0)
+    """A real pair whose nearest depth would have a larger disparity (px) is matched at the
+    scale that brings it to this: a matcher's cost grows with the range, and a phone capture's
+    neighbours stand several virtual baselines apart (monstree: 135–500 px at 384×512)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.real_views > self.real_neighbours:
+            raise Eve3dError(f"stereo.real_views: expected at most stereo.real_neighbours ({self.real_neighbours}), "
+                             f"got {self.real_views}")
+
+
+@dataclass
 class OnnxSpec(Checked):
     """A stereo network exported to ONNX (the ``stereo.onnx`` mapping)."""
 
@@ -270,7 +301,7 @@ class Degradation(Checked):
 
 
 @dataclass
-class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck):
+class StereoSettings(BaselineSettings, SgbmSettings, MatchCheck, RealPairSettings):
     """The ``stereo`` section: the prior source, the virtual baseline, SGBM's settings and
     the confidence checks (each stage reads its part with :func:`pick`)."""
 

@@ -52,7 +52,7 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
     alpha, that is the share of empty pixels it covers: floaters, which a TSDF meshes.
     With the photos (``images``), also the density and median error on the weakly textured
     pixels with a surface (:func:`weak_texture` over ``window``): ``weak_density``,
-    ``weak_rel_error`` and ``weak_share`` (their share of the pixels with a surface)."""
+    ``weak_signed_error``, ``weak_rel_error`` and ``weak_share`` (their share of the pixels with a surface)."""
     maps_dir, exact_dir = Path(maps_dir), Path(exact_dir)
     references = sorted(exact_dir.glob("*.npz"))
     if not references:
@@ -98,11 +98,13 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
 
 
 def _weak_figures(errors: list[np.ndarray], weak: int, known: int) -> dict:
-    """The weakly textured pixels' share, density and median error (none without photos)."""
+    """The weakly textured pixels' share, density and median signed and absolute error (none
+    without photos)."""
     if not errors:
         return {}
     err = np.concatenate(errors)
     return {"weak_share": weak / max(known, 1), "weak_density": len(err) / max(weak, 1),
+            "weak_signed_error": float(median(err)) if len(err) else None,
             "weak_rel_error": float(median(np.abs(err))) if len(err) else None}
 
 

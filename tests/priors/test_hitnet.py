@@ -7,7 +7,7 @@ import torch
 from eve3d.core.errors import Eve3dError
 from eve3d.core.settings_stereo import HitnetSettings
 from eve3d.priors.hitnet import HitnetStereo
-from tests.helpers import hitnet_model, plane_pair
+from tests.helpers import hitnet_model, plane_pair, virtual_pairs
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning", "ignore::torch.jit.TracerWarning")
 
@@ -132,7 +132,8 @@ def test_the_background_of_a_generated_scene_gets_no_confident_depth(tmp_path, b
     for name, check in (("checks", MatchCheck()), ("no flat test", MatchCheck(flat_level=0)),
                         ("left-right only", MatchCheck(ncc_threshold=0, mv_ncc_threshold=0, edge_window=0, min_alpha=0,
                                                        flat_level=0))):
-        stereo_priors(scene, tmp_path / "stereo", tmp_path / name, once, "HITNet", preview=False, check=check)
+        stereo_priors(scene, tmp_path / "stereo", tmp_path / name, once, "HITNet", preview=False, check=check,
+                      pairs=virtual_pairs())
         errors, surface, empty, on_box = [], [], [], []
         for cam, flat in zip(scene.cameras, box):
             maps, exact = load_maps(tmp_path / name / f"{cam.view_id}.npz"), caster.cast(cam).depth

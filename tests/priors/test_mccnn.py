@@ -10,7 +10,7 @@ from eve3d.core.maps import load_maps
 from eve3d.core.settings_stereo import MccnnSettings
 from eve3d.priors.mccnn import INSTALL, PATHS, MccnnStereo, packaged_weights, semi_global
 from eve3d.stereo import stereo_priors
-from tests.helpers import stereo_scene
+from tests.helpers import stereo_scene, virtual_pairs
 
 try:
     packaged_weights()
@@ -80,7 +80,7 @@ def test_flat_black_is_never_confident():
 def test_mccnn_priors_through_the_stereo_stage(tmp_path):
     scene, write_pairs = stereo_scene(tmp_path, 6, baseline=0.3)
     write_pairs()
-    stereo_priors(scene, tmp_path / "stereo", tmp_path / "priors", MccnnStereo(), "MC-CNN")
+    stereo_priors(scene, tmp_path / "stereo", tmp_path / "priors", MccnnStereo(), "MC-CNN", pairs=virtual_pairs())
     maps = load_maps(tmp_path / "priors/v.npz")
     sure = maps["confidence"] > 0.5
     assert sure.mean() > 0.5

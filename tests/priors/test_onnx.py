@@ -9,7 +9,7 @@ from eve3d.core.maps import load_maps
 from eve3d.core.settings_stereo import OnnxSpec
 from eve3d.priors.onnx import OnnxStereo
 from eve3d.stereo import stereo_priors
-from tests.helpers import shifted_pair, stereo_scene
+from tests.helpers import shifted_pair, stereo_scene, virtual_pairs
 
 # torch's TorchScript-based exporter (no onnxscript needed) warns that it is the legacy one.
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning", "ignore::torch.jit.TracerWarning",
@@ -114,7 +114,7 @@ def test_onnx_priors_through_the_stereo_stage(tmp_path):
     write_pairs()
     model = export(CostVolume(), tmp_path / "cv.onnx", (1, 3, 16, 24), dynamic=True)
     stereo_priors(scene, tmp_path / "stereo", tmp_path / "priors", OnnxStereo(OnnxSpec(model=str(model), divisor=8)),
-                  "onnx")
+                  "onnx", pairs=virtual_pairs())
     maps = load_maps(tmp_path / "priors/v.npz")
     sure = maps["confidence"] > 0.5
     assert sure.mean() > 0.5

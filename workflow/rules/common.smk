@@ -16,7 +16,7 @@ from eve3d.core.io.loader import has_poses
 from eve3d.core.layout import PRETRAIN, Layout
 from eve3d.core.settings import PretrainSettings, RenderSettings
 from eve3d.core.settings_fields import flag, pick
-from eve3d.core.settings_stereo import PRIOR_BACKENDS
+from eve3d.core.settings_stereo import PRIOR_BACKENDS, BaselineSettings
 
 try:
     _resolved = resolve_config(dict(config), source="config (config/config.yaml and --config/--configfile)")
@@ -212,10 +212,12 @@ def training_job(stage, scene, method=None):
 
 
 def render_job(scene):
-    """stereo-render's job config: the `stereo` section, and the render settings the pretrain
-    trained the scene with (the right views are rasterised the same way)."""
+    """stereo-render's job config: the `stereo` section's baseline keys (a change to the
+    matching or its checks does not render the right views again), and the render settings
+    the pretrain trained the scene with (the right views are rasterised the same way)."""
     rendering = pick(RenderSettings, stage_settings(PretrainSettings, "pretrain", scene_sections(config, scene)))
-    return job_config("stereo", pretrain=dataclasses.asdict(rendering))
+    baseline = {f.name: config["stereo"][f.name] for f in dataclasses.fields(BaselineSettings)}
+    return job_config(stereo=baseline, pretrain=dataclasses.asdict(rendering))
 
 
 def stereo_depth_args(wildcards, input):

@@ -77,7 +77,7 @@ def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
     width = max(len(title), *map(len, labels))
     weak = any("weak_share" in r for r in rows)
     lines = [f"{title:<{width}} {'median signed':>13} {'median rel. error':>17} {'density':>8} {'off >5 %':>9} "
-             f"{'off >10 %':>9} {'on empty':>9}" + (f" {'weak texture: share':>19} {'density':>8} {'error':>8}"
+             f"{'off >10 %':>9} {'on empty':>9}" + (f" {'weak texture: share':>19} {'density':>8} {'signed':>8} {'error':>8}"
                                                    if weak else "")]
 
     def percent(v, f=".2f"):
@@ -92,8 +92,9 @@ def prior_lines(title: str, labels: list[str], rows: list[dict]) -> list[str]:
                      f"{r['density']:8.3f} {r['wrong_5'] * 100:7.1f} % {r['wrong_10'] * 100:7.1f} % ")
         line += f"{percent(r.get('on_empty')):>9}"
         if weak:
+            signed = r.get("weak_signed_error")
             line += (f" {percent(r.get('weak_share'), '.1f'):>19} {r.get('weak_density', 0):8.3f} "
-                     f"{percent(r.get('weak_rel_error')):>8}")
+                     f"{'-' if signed is None else f'{signed * 100:+.2f} %':>8} {percent(r.get('weak_rel_error')):>8}")
         lines.append(line)
     if weak:
         lines.append(f"weak texture: pixels with a surface whose photo varies less than {WEAK_TEXTURE:g} grey levels "
