@@ -268,6 +268,16 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
                           confidence=confidence.astype(np.float32), normal=normal)
 
 
+def matched(left: np.ndarray, right: np.ndarray, margin: int, search: tuple[float, float], matcher
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """``matcher``'s disparity and confidence of ``left`` against a ``right`` image ``margin``
+    columns wider on the left: ``left`` padded to its width, the padding cut off again."""
+    padded = np.pad(left, ((0, 0), (margin, 0)) + ((0, 0),) * (left.ndim - 2))
+    with phase("match"):
+        disp, confidence = matcher(padded, right, search)
+    return disp[:, margin:], confidence[:, margin:]
+
+
 def virtual_prior(cam: Camera, left: np.ndarray, stereo_dir: Path, pair: dict, matcher, check: MatchCheck,
                   alpha: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Depth and confidence of ``cam``'s photo ``left`` matched against its virtual right view."""
@@ -277,9 +287,7 @@ def virtual_prior(cam: Camera, left: np.ndarray, stereo_dir: Path, pair: dict, m
     if right.shape[0] != left.shape[0] or right.shape[1] != left.shape[1] + margin:
         raise Eve3dError(f"{right_path}: {right.shape[1]}×{right.shape[0]}, expected the photo's "
                          f"{left.shape[1]}×{left.shape[0]} plus {margin} columns on the left")
-    padded = np.pad(left, ((0, 0), (margin, 0)) + ((0, 0),) * (left.ndim - 2))
-    with phase("match"):
-        disp, confidence = (m[:, margin:] for m in matcher(padded, right, search))
+    disp, confidence = matched(left, right, margin, search, matcher)
     with phase("checks"):
         confidence = checked_confidence(left, right, disp, confidence, search, margin, check, alpha)
     depth = np.where(disp > 0, cam.fx * float(pair["baseline"]) / np.maximum(disp, 1e-6), 0).astype(np.float32)
@@ -299,9 +307,7 @@ def real_prior(cam: Camera, left: np.ndarray, others: list[tuple[Camera, np.ndar
     for other, image in others:
         with phase("rectify"):
             rect = RectifiedPair.build(cam, left, other, image, (near, far), settings.real_max_disparity)
-        padded = np.pad(rect.left, ((0, 0), (rect.margin, 0)) + ((0, 0),) * (left.ndim - 2))
-        with phase("match"):
-            disp, confidence = (m[:, rect.margin:] for m in matcher(padded, rect.right, rect.search))
+        disp, confidence = matched(rect.left, rect.right, rect.margin, rect.search, matcher)
         with phase("checks"):
             confidence = checked_confidence(rect.left, rect.right, disp, confidence, rect.search, rect.margin, check)
         depth, confidence = rect.carried_back(disp, confidence)

@@ -228,7 +228,7 @@ def test_real_pairs_carry_the_exact_depth_back_to_the_view(object_scene, max_dis
     """A view and its real neighbours, rectified with the known poses and matched by SGBM:
     the depth carried back to the view is the ray-cast depth to a fraction of a percent, with
     no model in between, and the empty background gets none; matched at a smaller scale too,
-    where the pair's range passes ``stereo.real_max_disparity`` (48 px: about half size)."""
+    where the pair's range passes ``stereo.real_max_disparity`` (48 px: a quarter to half size)."""
     from eve3d.core.fileio import read_image
     from eve3d.core.raycast import MeshRaycaster
     from eve3d.core.settings_stereo import RealPairSettings

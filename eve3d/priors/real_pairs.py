@@ -66,13 +66,12 @@ def _index_K(K: np.ndarray) -> np.ndarray:
 @dataclass
 class RectifiedPair:
     """A view and a neighbour resampled to one rotation ``R`` (world to rectified) and
-    intrinsics ``K`` (our pixel convention) at ``scale`` × the view's size: ``left``, and
+    intrinsics ``K`` (our pixel convention), at the view's size or smaller: ``left``, and
     ``right`` with ``margin`` more columns on the left, so that a match up to ``margin`` px
     left of the frame stays inside it; ``search``, the disparities to search."""
 
     cam: Camera
     """The view at its own size: its pixels are the ones carried back to."""
-    scale: float
     R: np.ndarray
     K: np.ndarray
     baseline: float
@@ -121,7 +120,7 @@ class RectifiedPair:
                                                (width, cam.height), cv2.CV_32FC1)
             return cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
-        return cls(view, scale, R, K, baseline, search, margin, warp(cam, left, K, cam.width),
+        return cls(view, R, K, baseline, search, margin, warp(cam, left, K, cam.width),
                    warp(other, right, K_right, cam.width + margin))
 
     def carried_back(self, disparity: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
