@@ -8,6 +8,7 @@ that write fixed names inside their output folder use the file-name constants be
     {results}/report/                         the report's pages; {results}/report.html (snakemake --report)
     {results}/logs/{scene}/{rule}[_{what}].log
     {results}/benchmarks/{scene}/{rule}[_{what}].tsv
+    {results}/.cores/{pid}                    the training jobs running side by side (eve3d.core.cores)
     {results}/{scene}/input/                  generated synthetic dataset
     {results}/{scene}/ground_truth_check.json the ground truth lines up (dtu, tnt; before training)
     {results}/{scene}/sfm/                    posed dataset of an image-only one
@@ -165,6 +166,10 @@ class Layout:
         """A job's log: ``rule`` of a scene, ``what`` naming the job among the rule's
         (a method, a backend)."""
         return self.logs(scene) / f"{job_name(rule, what)}.log"
+
+    def core_share(self) -> Path:
+        """Where the training jobs running side by side register (``eve3d.core.cores``)."""
+        return self.root / ".cores"
 
     def benchmarks(self, scene: str | None = None) -> Path:
         """The folder of Snakemake's ``benchmark:`` files (of one scene)."""

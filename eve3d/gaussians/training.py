@@ -16,6 +16,7 @@ checkpointed, so a killed run that resumes from its last checkpoint continues th
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
@@ -26,6 +27,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from eve3d.core.cores import CoreShare
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_path
 from eve3d.core.layout import MODEL_FILE, PREVIEWS_DIR, RECORD, TRAIN_METRICS_FILE, TRAINING
@@ -159,16 +161,19 @@ class Trainer:
         self.checkpoint.resume(st)
         end = self.settings.iterations if until is None else min(until, self.settings.iterations)
         progress = _Progress(self.name, self.settings.iterations, st.step)
-        with phase("steps"):
-            self._loop(loss_terms, events, end, progress)
+        share = CoreShare.from_environment()
+        with phase("steps"), share or contextlib.nullcontext():
+            self._loop(loss_terms, events, end, progress, share)
         progress.close()
 
     def _loop(self, loss_terms: LossTerms, events: Callable[[int], None] | None, end: int,
-              progress: _Progress) -> None:
-        """The steps of :meth:`run`."""
+              progress: _Progress, share: CoreShare | None = None) -> None:
+        """The steps of :meth:`run`, on ``share``'s part of the cores where given."""
         st = self.state
         while st.step < end:
             step = st.step
+            if share is not None:
+                share.rebalance(step)
             st.set_means_lr(self.means_lr(step))
             view = self.next_view()
             out = self.render(view, step, absgrad=self.settings.densify.absgrad)

@@ -54,3 +54,24 @@ def test_scene_without_points_starts_from_random_points_in_the_camera_sphere(tin
     assert dist.max() <= bare.radius and np.median(dist) > 0.5 * bare.radius  # uniform in the ball
     same, _ = initial_points(tiny_scene, 500, np.random.default_rng(0))
     assert same is tiny_scene.points
+
+
+def test_a_job_sharing_the_cores_takes_them_all_once_alone(tiny_scene, tmp_path, monkeypatch):
+    """With EVE3D_CORE_SHARE (the workflow's `training_jobs` above 1), a trainer started on one
+    thread takes the share's cores while no other job is registered, and unregisters at the end."""
+    from eve3d.core.cores import ENV
+
+    share = tmp_path / "cores"
+    monkeypatch.setenv(ENV, f"{share}:2")
+    s = TrainSettings(iterations=30, sh_degree=0, checkpoint_every=0, densify=DensifySettings(refine_start=1000))
+    trainer = Trainer(tiny_scene, s, tmp_path, "fit")
+    trainer.state.set_model(GaussianModel.from_points(tiny_scene.points, tiny_scene.point_colors / 255, 0))
+    before, seen = torch.get_num_threads(), []
+    try:
+        torch.set_num_threads(1)
+        trainer.run(lambda step, view, out: (seen.append((torch.get_num_threads(), len(list(share.iterdir())))),
+                                             {"rgb": rgb_loss(out.rgb, view.image)})[1])
+    finally:
+        torch.set_num_threads(before)
+    assert seen[0] == (2, 1)  # registered, and alone: both cores from the first step
+    assert not list(share.iterdir())

@@ -11,6 +11,7 @@ REPO = str(Path(workflow.basedir).parent)  # workflow/Snakefile: the checkout wh
 sys.path.insert(0, REPO)
 from eve3d.config import (has_gt_mesh, method_settings, named_methods, resolve_config, scene_protocol, scene_sections,
                           scene_value, stage_settings)
+from eve3d.core.cores import ENV as CORE_SHARE_ENV
 from eve3d.core.errors import Eve3dError
 from eve3d.core.io.loader import has_poses
 from eve3d.core.layout import PRETRAIN, Layout
@@ -94,6 +95,14 @@ def training_threads():
     `training_jobs`, the jobs meant to run side by side (the demo: pgsr beside the chain
     pretrain → stereo → eve3d; docs/development.md, "Where a run's time goes")."""
     return max(1, all_cores() // config["training_jobs"])
+
+
+# Training jobs side by side (`training_jobs` above 1, the demo) share the cores: each
+# registers in the run's folder and, once alone, takes every core (eve3d.core.cores). Through
+# the environment the jobs inherit, not their shell command, so that it triggers no rerun; a
+# cluster's jobs (training_jobs 1) keep their own cores.
+if config["training_jobs"] > 1:
+    os.environ[CORE_SHARE_ENV] = f"{LAYOUT.core_share()}:{all_cores()}"
 
 
 def after_training(wildcards):
