@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from tqdm import tqdm
 
 from eve3d.core.errors import Eve3dError
@@ -209,6 +210,25 @@ def loss_terms(trainer: Trainer, settings: JointSettings, neighbours: list[list[
     return terms
 
 
+FLAT_LEVELS = 4 / 255
+"""Grey-level standard deviation over 5×5 pixels from which a photo counts as textured
+(``JointSettings.prior_flat_weight``); the rooms' walls lie below it on most pixels."""
+
+
+def prior_weights(view: View, settings: JointSettings) -> torch.Tensor | float:
+    """λ_prior per pixel of ``view``: ``prior_weight`` on texture, rising linearly to
+    ``prior_flat_weight`` as the 5×5 grey-level standard deviation falls to 0; the scalar
+    ``prior_weight`` where ``prior_flat_weight`` is 0."""
+    if not settings.prior_flat_weight:
+        return settings.prior_weight
+    grey = view.grey[..., 0][None, None]
+    mean = F.avg_pool2d(grey, 5, 1, 2, count_include_pad=False)
+    square = F.avg_pool2d(grey * grey, 5, 1, 2, count_include_pad=False)
+    std = (square - mean * mean).clamp_min(0).sqrt()[0, 0]
+    flat = (1 - std / FLAT_LEVELS).clamp(0, 1)
+    return settings.prior_weight + (settings.prior_flat_weight - settings.prior_weight) * flat
+
+
 def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor, neighbours: list[View],
                 priors: PriorState, settings: JointSettings, generator: torch.Generator) -> dict[str, torch.Tensor]:
     """Eve3D's terms (DESIGN §3). Before T_joint (``joint_from``): L_prior towards the fixed
@@ -231,14 +251,15 @@ def prior_terms(step: int, view: View, out: RenderOutput, covered: torch.Tensor,
     confidence = at(priors.confidence[i])
     confident = confidence & covered
     target = at(priors.depth(i) if joint else priors.star.depth[i])
-    if settings.prior_weight and confident.any():
+    if (settings.prior_weight or settings.prior_flat_weight) and confident.any():
         target_normal = (depth_to_normal(target, view.cam, settings.prior_normal_span) if joint
                          else at(priors.star.normal[i]))
         normal = torch.nn.functional.normalize(out.normal, dim=-1)
-        depth_term = ((target - out.depth).abs() * confident).sum() / confident.sum()
+        weight = prior_weights(view, settings)
+        depth_term = (weight * (target - out.depth).abs() * confident).sum() / confident.sum()
         on_normal = confident & (target_normal.norm(dim=-1) > 0)
-        normal_term = ((1 - (target_normal * normal).sum(-1)) * on_normal).sum() / on_normal.sum().clamp_min(1)
-        t["prior"] = settings.prior_weight * (depth_term + settings.prior_normal_weight * normal_term)
+        normal_term = (weight * (1 - (target_normal * normal).sum(-1)) * on_normal).sum() / on_normal.sum().clamp_min(1)
+        t["prior"] = depth_term + settings.prior_normal_weight * normal_term
     unconfident = ~confidence & covered
     if priors.learnable and joint and settings.pull_weight and unconfident.any():
         pull = (at(priors.depth(i)) - out.depth.detach()).abs() * unconfident

@@ -77,14 +77,15 @@ REGISTRY: dict[str, Method] = {m.name: m for m in (
            " L_pull; the LBA of the depth against K neighbours' D̂ (in place of PGSR's rendered neighbour)",
            settings={"init": "priors", "priors": "learnable", "geo_weight": 0.0, "ncc_weight": 0.0}),
     # Measured on every generated kind (docs/results.md, "Eve3D against PGSR, honestly
-    # started"): with stereo priors the prior-point start and the LBA cost F, PGSR's start
-    # and rendered-neighbour terms do not; docs/method.md, "Choices", says why.
-    # The opacity loss runs while densification prunes: it removes the floaters, and stops
-    # before it only thins the surfaces (docs/method.md, "Choices").
-    Method("eve3d", "Eve3D as measured best here: PGSR's start and multi-view terms, L_prior towards learnable"
-           " priors D̂ (initialised from D*) with L_pull, an opacity loss while densifying; no LBA (eve3d-paper"
-           " has it)",
-           settings={"priors": "learnable", "lba_weight": 0.0, "opacity_weight": 0.05,
+    # started"): the LBA costs F with stereo priors, PGSR's rendered-neighbour terms do not;
+    # docs/method.md, "Choices", says why. With priors from real photo pairs the prior-point
+    # start pays along the whole prior-quality curve (issue 77: docs/results.md, "eve3d on the
+    # prior-quality curve"). The opacity loss runs while densification prunes: it removes the
+    # floaters, and stops before it only thins the surfaces (docs/method.md, "Choices").
+    Method("eve3d", "Eve3D as measured best here: Gaussians from the prior depths, PGSR's multi-view terms,"
+           " L_prior towards learnable priors D̂ (initialised from D*) with L_pull, an opacity loss while"
+           " densifying; no LBA (eve3d-paper has it)",
+           settings={"init": "priors", "priors": "learnable", "lba_weight": 0.0, "opacity_weight": 0.05,
                      "opacity_while_densifying": True}),
 )}
 

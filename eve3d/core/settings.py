@@ -362,6 +362,12 @@ class JointSettings(TrainSettings):
     depth in the LBA); ``learnable`` (D̂ per view, initialised from D*: Eve3D)."""
     prior_weight: float = setting(0.05, ge=0)
     """λ_prior: |D_prior − D| + ``prior_normal_weight`` · (1 − N_prior·N) on confident pixels."""
+    prior_flat_weight: float = setting(0.0, ge=0)
+    """λ_prior where the photo has no texture (beyond the paper; 0 = ``prior_weight``
+    everywhere): the photos pin a textured surface's depth through the multi-view terms, but
+    say little of a blank wall, where the prior is the only witness. The weight goes from
+    ``prior_weight`` at ``FLAT_LEVELS`` grey levels of standard deviation over 5×5 pixels to
+    this at none (``eve3d.joint.prior_weights``)."""
     prior_normal_weight: float = setting(1.0, ge=0)
     """Weight w of the normal term in L_prior."""
     prior_normal_span: int = setting(1, ge=1)
