@@ -34,24 +34,27 @@ class CoreShare:
     """This job's part of ``cores`` shared with the jobs registered in ``directory``; a
     context manager that registers the job while it trains."""
 
-    def __init__(self, directory: Path, cores: int):
-        self.directory, self.cores = Path(directory), max(1, cores)
-        self.entry = self.directory / str(os.getpid())
+    def __init__(self, directory: Path | None, cores: int):
+        self.directory, self.cores = directory and Path(directory), max(1, cores)
+        self.entry = self.directory / str(os.getpid()) if self.directory else None
 
     @classmethod
-    def from_environment(cls) -> CoreShare | None:
-        """The share ``EVE3D_CORE_SHARE`` describes, or None where it is unset or malformed
-        (a job run by hand keeps the threads it was given)."""
+    def from_environment(cls) -> CoreShare:
+        """The share ``EVE3D_CORE_SHARE`` describes; where it is unset or malformed, none (no
+        directory: entering and :meth:`rebalance` do nothing, and a job run by hand keeps the
+        threads it was given)."""
         directory, _, cores = os.environ.get(ENV, "").rpartition(":")
-        return cls(Path(directory), int(cores)) if directory and cores.isdigit() else None
+        return cls(Path(directory), int(cores)) if directory and cores.isdigit() else cls(None, 1)
 
     def __enter__(self) -> CoreShare:
-        self.directory.mkdir(parents=True, exist_ok=True)
-        self.entry.touch()
+        if self.entry:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            self.entry.touch()
         return self
 
     def __exit__(self, *exc) -> None:
-        self.entry.unlink(missing_ok=True)
+        if self.entry:
+            self.entry.unlink(missing_ok=True)
 
     def jobs(self) -> int:
         """The registered jobs still alive, this one included."""
@@ -63,8 +66,8 @@ class CoreShare:
         return max(1, self.cores // self.jobs())
 
     def rebalance(self, step: int) -> None:
-        """Every :data:`EVERY` steps, take :meth:`threads` threads."""
-        if step % EVERY == 0:
+        """Every :data:`EVERY` steps, take :meth:`threads` threads (sharing with nobody: nothing)."""
+        if self.directory and step % EVERY == 0:
             import torch
 
             threads = self.threads()

@@ -16,7 +16,6 @@ checkpointed, so a killed run that resumes from its last checkpoint continues th
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import sys
@@ -161,19 +160,17 @@ class Trainer:
         self.checkpoint.resume(st)
         end = self.settings.iterations if until is None else min(until, self.settings.iterations)
         progress = _Progress(self.name, self.settings.iterations, st.step)
-        share = CoreShare.from_environment()
-        with phase("steps"), share or contextlib.nullcontext():
+        with phase("steps"), CoreShare.from_environment() as share:
             self._loop(loss_terms, events, end, progress, share)
         progress.close()
 
     def _loop(self, loss_terms: LossTerms, events: Callable[[int], None] | None, end: int,
-              progress: _Progress, share: CoreShare | None = None) -> None:
-        """The steps of :meth:`run`, on ``share``'s part of the cores where given."""
+              progress: _Progress, share: CoreShare) -> None:
+        """The steps of :meth:`run`, on ``share``'s part of the cores."""
         st = self.state
         while st.step < end:
             step = st.step
-            if share is not None:
-                share.rebalance(step)
+            share.rebalance(step)
             st.set_means_lr(self.means_lr(step))
             view = self.next_view()
             out = self.render(view, step, absgrad=self.settings.densify.absgrad)
@@ -197,11 +194,10 @@ class Trainer:
 
     def finish(self, out_dir: Path, record: Callable[[dict], dict], depth: str,
                beside_model: Callable[[], None] = lambda: None) -> dict:
-        """The end of a training stage: the model saved (``point_cloud.ply``), then
-        ``beside_model`` (what else the stage writes from it), the PSNR and SSIM of the
-        training and held-out views in ``train_metrics.json`` (its fields as ``record``
-        arranges them, given ``train`` and ``held_out``), previews with the ``depth`` output,
-        and the checkpoint removed. Returns the metrics."""
+        """The end of a training stage: the model saved (``point_cloud.ply``), then ``beside_model``
+        (what else the stage writes from it), the PSNR and SSIM of the training and held-out views
+        in ``train_metrics.json`` (its fields as ``record`` arranges them, given ``train`` and
+        ``held_out``), previews with the ``depth`` output, and the checkpoint removed. Returns the metrics."""
         model, views = self.model, self.views
         model.environment = model.environment and model.environment.filled()  # it shows new views from here on
         with phase("save"):

@@ -48,9 +48,13 @@ def test_rebalance_sets_torch_threads(tmp_path):
 
 def test_from_environment(tmp_path, monkeypatch):
     monkeypatch.delenv(ENV, raising=False)
-    assert CoreShare.from_environment() is None
+    with CoreShare.from_environment() as alone:  # none: registers nowhere, never sets threads
+        assert alone.directory is None
+        before = torch.get_num_threads()
+        alone.rebalance(0)
+        assert torch.get_num_threads() == before
     monkeypatch.setenv(ENV, f"{tmp_path}:3")
     share = CoreShare.from_environment()
     assert share.directory == tmp_path and share.cores == 3
     monkeypatch.setenv(ENV, "no cores given")
-    assert CoreShare.from_environment() is None
+    assert CoreShare.from_environment().directory is None
