@@ -319,6 +319,15 @@ class JointRun:
     priors: PriorState | None
 
 
+def with_sparse_points(scene: Scene, points: np.ndarray, colors: np.ndarray,
+                       drop_isolated: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The prior points and the scene's SfM points together (``init: both``): the SfM
+    points seed what the priors refuse, such as the far ends of a floor."""
+    sparse, sparse_colors = initial_points(scene, 0, None, drop_isolated)
+    sparse_colors = np.full_like(sparse, 0.5) if sparse_colors is None else sparse_colors
+    return np.concatenate([points, sparse]), np.concatenate([colors, sparse_colors])
+
+
 def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir: Path | None = None) -> JointRun:
     """The trainer, its initial Gaussians, the priors and the loss of ``settings``' method.
     ``priors_dir`` holds the stereo priors (``priors/{backend}``) of a method that uses them."""
@@ -338,14 +347,16 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
         for confidence, view in zip(loaded.confidence, views):
             if view.beyond is not None:  # the environment explains these pixels: no surface to measure
                 confidence &= ~view.beyond
-        if settings.init == "priors":
+        if settings.init in ("priors", "both"):
             points, colors = prior_points(loaded, views.cameras, views.images, views.train_ids,
                                           settings.init_prior_points, rng)
         prior = PriorState(state, views, loaded, settings) if settings.priors != "none" else None
         trainer.checkpoint.depend_on(loaded.digest)
     with phase("initial Gaussians"):
-        if settings.init != "priors":
+        if settings.init == "sparse":
             points, colors = initial_points(scene, settings.init_random_points, rng, settings.init_drop_isolated)
+        elif settings.init == "both" and scene.points is not None and len(scene.points) >= 4:
+            points, colors = with_sparse_points(scene, points, colors, settings.init_drop_isolated)
         trainer.start_from(points, colors)
     exposure = None
     if settings.exposure:

@@ -225,6 +225,16 @@ def test_eve3d_starts_from_points_on_the_prior_surface(tiny_scene, tmp_path, noi
     assert np.median(dist) < 0.05 and np.mean(dist < 0.15) > 0.95
 
 
+def test_eve3d_starts_from_the_prior_points_and_the_sfm_points(tiny_scene, tmp_path, noisy_priors):
+    run = setup_joint(tiny_scene, tmp_path, _eve3d(init="both", init_prior_points=2000), noisy_priors)
+    means = run.trainer.model.params["means"].detach().numpy()
+    assert len(tiny_scene.points) >= 4 and len(means) == 2000 + len(tiny_scene.points)
+    np.testing.assert_allclose(means[2000:], tiny_scene.points, atol=1e-6)
+    without = replace(tiny_scene, points=None, point_colors=None)  # no SfM: the prior points alone
+    assert len(setup_joint(without, tmp_path / "b", _eve3d(init="both", init_prior_points=2000),
+                           noisy_priors).trainer.model.params["means"]) == 2000
+
+
 def test_exported_priors_at_dataset_resolution_with_previews(tiny_scene, tmp_path, noisy_priors):
     train_joint(tiny_scene, tmp_path, _eve3d(iterations=10, prior_from=0, joint_from=5, resolution=0.5), noisy_priors)
     m = load_maps(tmp_path / "priors/000.npz")

@@ -80,12 +80,13 @@ REGISTRY: dict[str, Method] = {m.name: m for m in (
     # started"): the LBA costs F with stereo priors, PGSR's rendered-neighbour terms do not;
     # docs/method.md, "Choices", says why. With priors from real photo pairs the prior-point
     # start pays along the whole prior-quality curve (issue 77: docs/results.md, "eve3d on the
-    # prior-quality curve"). The opacity loss runs while densification prunes: it removes the
-    # floaters, and stops before it only thins the surfaces (docs/method.md, "Choices").
-    Method("eve3d", "Eve3D as measured best here: Gaussians from the prior depths, PGSR's multi-view terms,"
-           " L_prior towards learnable priors D̂ (initialised from D*) with L_pull, an opacity loss while"
-           " densifying; no LBA (eve3d-paper has it)",
-           settings={"init": "priors", "priors": "learnable", "lba_weight": 0.0, "opacity_weight": 0.05,
+    # prior-quality curve"); the SfM points beside the prior points seed what the priors
+    # refuse, such as a floor's far edge. The opacity loss runs while densification prunes: it
+    # removes the floaters, and stops before it only thins the surfaces (docs/method.md, "Choices").
+    Method("eve3d", "Eve3D as measured best here: Gaussians from the prior depths and the SfM points,"
+           " PGSR's multi-view terms, L_prior towards learnable priors D̂ (initialised from D*) with L_pull,"
+           " an opacity loss while densifying; no LBA (eve3d-paper has it)",
+           settings={"init": "both", "priors": "learnable", "lba_weight": 0.0, "opacity_weight": 0.05,
                      "opacity_while_densifying": True}),
 )}
 
@@ -116,7 +117,7 @@ def default_methods(scores: str) -> list[str]:
 
 def uses_priors(settings: Mapping[str, Any]) -> bool:
     """Whether joint settings (all of them, or a method's changes) read the stereo priors."""
-    return settings.get("priors", "none") != "none" or settings.get("init") == "priors"
+    return settings.get("priors", "none") != "none" or settings.get("init") in ("priors", "both")
 
 
 def methods(variants: Mapping[str, Mapping] | None = None) -> dict[str, Method]:

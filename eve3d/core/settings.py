@@ -352,9 +352,10 @@ class JointSettings(TrainSettings):
     """Learn a 3×4 colour transform per training image (PGSR's exposure compensation)."""
     exposure_lr: float = setting(1e-3, ge=0)
     """Adam step of the exposure transforms."""
-    init: str = setting("sparse", choices=("sparse", "priors"))
-    """Initial Gaussians: ``sparse`` (the SfM points; random points without them) or
-    ``priors`` (points back-projected from confident prior depths, Eve3D)."""
+    init: str = setting("sparse", choices=("sparse", "priors", "both"))
+    """Initial Gaussians: ``sparse`` (the SfM points; random points without them),
+    ``priors`` (points back-projected from confident prior depths, Eve3D) or ``both``
+    (the prior points and the SfM points, where the scene has them)."""
     init_prior_points: int = setting(500_000, ge=1)
     """Points drawn for ``init: priors`` (the paper: 500k on DTU, 1M on T&T)."""
     priors: str = setting("none", choices=("none", "fixed", "learnable"))
