@@ -6,7 +6,7 @@ import functools
 import multiprocessing
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import TYPE_CHECKING
 from unittest import mock
 
@@ -242,13 +242,15 @@ def profile_steps(trainer: Trainer, loss: LossTerms, events: Callable[[int], Non
 
 def stage_settings_for(stage: str, config: dict, gaussians: int):
     """The settings of ``stage`` (``pretrain`` or a trained method) under ``config``, without
-    checkpoints, drawing ``gaussians`` prior points where the method starts from the priors."""
+    checkpoints, drawing ``gaussians`` prior points where the method starts from the priors
+    (from them alone: with the SfM points too, ``init: both``, it would start from twice as many)."""
     from eve3d.config import method_settings, stage_settings
     from eve3d.core.settings import PretrainSettings
 
     if stage == "pretrain":
         return stage_settings(PretrainSettings, "pretrain", config, checkpoint_every=0)
-    return method_settings(stage, config, "--stages", checkpoint_every=0, init_prior_points=gaussians)
+    settings = method_settings(stage, config, "--stages", checkpoint_every=0, init_prior_points=gaussians)
+    return replace(settings, init="priors") if settings.init == "both" else settings
 
 
 def time_training(scene_dir: str, stage: str, config: dict, gaussians: int, start: int, warmup: int, steps: int,
