@@ -2,6 +2,7 @@
 import csv
 import json
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -282,6 +283,19 @@ def test_tiny_training_run(tmp_path):
         m = assert_mesh_metrics(results / f"tiny/{method}/metrics.json", "tiny", method)
         assert float(summary["tiny", method]["fscore"]) == pytest.approx(m["fscore"])
     assert_profile(run_log)
+    # a release that changes a registered method's settings reruns that method's jobs only
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text("from eve3d.core.methods import REGISTRY\n"
+                                           "REGISTRY['pgsr'].settings['geo_weight'] = 0.5\n")
+    path = os.pathsep.join(filter(None, (str(site), os.environ.get("PYTHONPATH"))))
+    r = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(SNAKEFILE), "-n", "--configfile", str(cfg),
+                        "--replace-workflow-config"], capture_output=True, text=True, cwd=REPO,
+                       env={**os.environ, "PYTHONPATH": path})
+    assert r.returncode == 0, r.stderr[-3000:]
+    jobs = r.stdout.split("rule ")[1:]  # one job a block, its rule's name first
+    assert {re.search(r"method=([\w-]+)", job).group(1) for job in jobs if job.startswith("joint:")} == {"pgsr"}
+    assert "Params have changed" in r.stdout
 
 
 def assert_profile(log: str) -> None:

@@ -46,6 +46,9 @@ rule joint:
         config=lambda wc: training_job("joint", wc.scene, wc.method),
         out=lambda wc: LAYOUT.method(wc.scene, wc.method),
         priors=lambda wc, input: f"--priors {input.priors}" if "priors" in input.keys() else "",
+        # not in the command: Snakemake reruns a job whose params change, so a new release's
+        # settings for a registered method (eve3d.core.methods) rerun that method's jobs
+        method_settings=lambda wc: METHOD[wc.method].settings,
     log:
         LAYOUT.log("{scene}", "joint", "{method}"),
     benchmark:
