@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eve3d.core.errors import Eve3dError
 from eve3d.core.hull import measured_hull
 from eve3d.core.io.loader import load_scene
 from eve3d.core.settings import TrainSettings
@@ -52,7 +53,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("meshes", type=Path, nargs="+")
     parser.add_argument("--margin", type=float, default=TrainSettings().sky_margin)
     args = parser.parse_args(argv)
-    scene = load_scene(args.scene, check_images=False)
+    try:
+        scene = load_scene(args.scene, check_images=False)
+        missing = [str(path) for path in args.meshes if not path.is_file()]
+        if missing:
+            raise Eve3dError(f"{', '.join(missing)}: mesh not found")
+    except Eve3dError as e:
+        parser.error(str(e))  # the message and the usage, exit 2
     print(f"| mesh | sky pixels covered | views with a sheet (of {len(scene.cameras)}) |\n|---|---|---|")
     for path in args.meshes:
         share, sheets = sky_cover(scene, path, args.margin)
