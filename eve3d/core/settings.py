@@ -357,7 +357,7 @@ class JointSettings(TrainSettings):
     ``priors`` (points back-projected from confident prior depths, Eve3D) or ``both``
     (the prior points and the SfM points, where the scene has them)."""
     init_prior_points: int = setting(500_000, ge=1)
-    """Points drawn for ``init: priors`` (the paper: 500k on DTU, 1M on T&T)."""
+    """Points drawn for ``init: priors`` and ``both`` (the paper: 500k on DTU, 1M on T&T)."""
     priors: str = setting("none", choices=("none", "fixed", "learnable"))
     """Stereo priors: ``none``; ``fixed`` (D* is the target of L_prior and the neighbours'
     depth in the LBA); ``learnable`` (D̂ per view, initialised from D*: Eve3D)."""
