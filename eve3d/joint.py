@@ -38,7 +38,7 @@ from eve3d.gaussians.neighbours import select_neighbours
 from eve3d.gaussians.render import RenderOutput, render_model
 from eve3d.gaussians.render.projection import CameraTensors
 from eve3d.gaussians.train_state import TrainState
-from eve3d.gaussians.training import LossTerms, Trainer, initial_points, photometric_terms
+from eve3d.gaussians.training import LossTerms, Trainer, has_sparse_points, initial_points, photometric_terms
 from eve3d.gaussians.views import View, Views
 from eve3d.priors.learnable import Priors, comparison_preview, filled_log_depth, load_priors, prior_points
 
@@ -355,7 +355,7 @@ def setup_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
     with phase("initial Gaussians"):
         if settings.init == "sparse":
             points, colors = initial_points(scene, settings.init_random_points, rng, settings.init_drop_isolated)
-        elif settings.init == "both" and scene.points is not None and len(scene.points) >= 4:
+        elif settings.init == "both" and has_sparse_points(scene):
             points, colors = with_sparse_points(scene, points, colors, settings.init_drop_isolated)
         trainer.start_from(points, colors)
     exposure = None

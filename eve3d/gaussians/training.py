@@ -45,12 +45,17 @@ LossTerms = Callable[[int, View, RenderOutput], dict[str, torch.Tensor]]
 """``(step, view, rendered view) -> weighted loss terms``, whose sum a step minimises."""
 
 
+def has_sparse_points(scene: Scene) -> bool:
+    """Whether the scene has SfM points enough to start from (four: a volume)."""
+    return scene.points is not None and len(scene.points) >= 4
+
+
 def initial_points(scene: Scene, count: int, rng: np.random.Generator,
                    drop_isolated: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """The scene's sparse points and colours (without its :meth:`~eve3d.core.scene.Scene.isolated`
     ones if ``drop_isolated``), or ``count`` random points in the cameras' bounding sphere
     when there are none (3DGS's random initialisation)."""
-    if scene.points is not None and len(scene.points) >= 4:
+    if has_sparse_points(scene):
         points, colors = scene.points, scene.point_colors
         if drop_isolated:
             keep = ~scene.isolated()
