@@ -4,11 +4,13 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import os
 import sys
 from collections.abc import Callable
 from typing import Any
 
 from eve3d.core import timing
+from eve3d.core.cores import CoreShare
 from eve3d.core.errors import Eve3dError
 
 
@@ -548,6 +550,17 @@ _WITHOUT_OPEN3D = (_cmd_pretrain, _cmd_stereo_render, _cmd_joint)
 it runs."""
 
 
+_TRAINING = (_cmd_pretrain, _cmd_joint)
+"""The commands whose threads follow the cores the other jobs leave (``eve3d.core.cores``)."""
+
+
+def _core_share(func: Callable) -> CoreShare:
+    """The job's registration among the jobs sharing the cores, where the workflow shares them:
+    a training command takes its share, any other keeps the threads Snakemake gave it."""
+    threads = os.environ.get("OMP_NUM_THREADS", "")
+    return CoreShare.from_environment(None if func in _TRAINING else int(threads) if threads.isdigit() else 1)
+
+
 def main(argv: list[str] | None = None) -> int:
     """``eve3d ARGV``; None: this process's own command line (the ``eve3d`` script, ``python -m
     eve3d``). A training command in a process of its own marks open3d absent, so that reading
@@ -558,7 +571,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None and args.func in _WITHOUT_OPEN3D:
         sys.modules.setdefault("open3d", None)
     try:
-        args.func(args)
+        with _core_share(args.func):
+            args.func(args)
     except Eve3dError as e:
         print(f"eve3d {args.command}: error: {e}", file=sys.stderr)
         return 2
