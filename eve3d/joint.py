@@ -9,7 +9,8 @@ multi-view parts off and the plain split it is 3DGS, meshed from the expected de
 Σ w z / Σ w.
 
 Writes ``point_cloud.ply``, ``depth/{view}.npz`` (depth, confidence = rendered alpha,
-camera-space normal; at the dataset's full resolution, with PNG previews),
+camera-space normal, and with an environment ``sky``: what it explains, which no mesh fuses;
+at the dataset's full resolution, with PNG previews),
 ``train_metrics.json``, ``previews/`` and, for learnable priors, ``priors/`` (the final D̂).
 """
 from __future__ import annotations
@@ -299,15 +300,26 @@ def export_priors(trainer: Trainer, scene: Scene, priors: PriorState, out_dir: P
 
 
 @torch.no_grad()
-def export_depths(model: GaussianModel, scene: Scene, rendering: RenderSettings, out_dir: Path, kind: str) -> None:
+def export_depths(model: GaussianModel, scene: Scene, rendering: RenderSettings, out_dir: Path, kind: str,
+                  sky_tolerance: float = 0.0) -> None:
     """Render ``kind`` (``depth`` or ``depth_expected``) for every view at full resolution:
-    the depth maps the mesh is fused from."""
+    the depth maps the mesh is fused from. With an environment at infinity and a
+    ``sky_tolerance``, each map also marks as ``sky`` the pixels whose photo the environment
+    explains (``train.sky_tolerance``), which no mesh fuses."""
+    from eve3d.core.photos import read_view
+
+    sky = model.environment is not None and sky_tolerance > 0
     with atomic_dir(out_dir) as tmp:
         for cam in tqdm(scene.cameras, desc=f"rendering {kind}", unit="view"):
             out = render_model(model, cam, rendering)
             normal = torch.nn.functional.normalize(out.normal, dim=-1)
-            save_maps(tmp / f"{cam.view_id}.npz", depth=getattr(out, kind).cpu().numpy(),
-                      confidence=out.alpha.cpu().numpy(), normal=normal.cpu().numpy())
+            maps = {"depth": getattr(out, kind).cpu().numpy(), "confidence": out.alpha.cpu().numpy(),
+                    "normal": normal.cpu().numpy()}
+            if sky:
+                photo = torch.from_numpy(read_view(cam)).float() / 255
+                tensors = CameraTensors.from_camera(cam, device=out.alpha.device)
+                maps["sky"] = model.environment.explains(tensors, photo.to(out.alpha.device), sky_tolerance).cpu().numpy()
+            save_maps(tmp / f"{cam.view_id}.npz", **maps)
 
 
 @dataclass
@@ -378,7 +390,7 @@ def train_joint(scene: Scene, out_dir: Path, settings: JointSettings, priors_dir
 
     def save_depths() -> None:
         with phase("export depths"):
-            export_depths(model, scene, settings, out_dir / DEPTH_DIR, depth_kind)
+            export_depths(model, scene, settings, out_dir / DEPTH_DIR, depth_kind, settings.sky_tolerance)
 
     def record(scores: dict) -> dict:
         return {"method": settings.method, **scores, "gaussians": len(model), "depth": depth_kind,

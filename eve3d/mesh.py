@@ -44,7 +44,7 @@ def view_depths(scene: Scene, depth_dir: Path, min_confidence: float, max_incide
         path = depth_dir / f"{cam.view_id}.npz"
         if not path.exists():
             raise Eve3dError(f"{path}: depth map missing for view {cam.view_id}")
-        maps = load_maps(path, ("depth", "confidence") + (("normal",) if oblique else ()))
+        maps = load_maps(path, ("depth", "confidence", "sky") + (("normal",) if oblique else ()))
         depth = maps["depth"].astype(np.float32)
         small = map_camera(cam, depth.shape, path)  # fused at the map's size (priors: the pretrain's)
         keep = fusable(maps, min_confidence)

@@ -38,9 +38,11 @@ def load_maps(path: Path, keys: Sequence[str] | None = None) -> dict[str, np.nda
 def fusable(maps: dict[str, np.ndarray], min_confidence: float) -> np.ndarray:
     """(H, W) bool: the pixels of a view's maps that a mesh fuses, and that the depth scores
     count: a positive depth whose confidence, where the maps have one, is at least
-    ``min_confidence`` (``mesh.min_confidence``)."""
+    ``min_confidence`` (``mesh.min_confidence``), and that the maps' ``sky`` does not mark."""
     depth = maps["depth"]
     confident = maps["confidence"] >= min_confidence if "confidence" in maps else np.ones(depth.shape, bool)
+    if "sky" in maps:  # what the environment at infinity explains (eve3d.joint.export_depths)
+        confident &= maps["sky"] < 0.5
     return confident & (depth > 0)
 
 

@@ -253,6 +253,12 @@ class TrainSettings(RenderSettings):
     sky_margin: float = setting(0.1, ge=0)
     """The measured scene: the sparse points' hull grown by this share of its size
     (``eve3d.core.scene.Scene.hull``)."""
+    sky_tolerance: float = setting(0.03, ge=0, le=1)
+    """The depth maps a method exports mark as sky (``sky``, which no mesh fuses) the pixels
+    whose photo the environment at infinity explains: within this of its colour, the largest
+    channel's difference over 3×3 pixels, in a direction a training photo showed beyond the
+    measured scene. Inside the scene's hull too, where the sky loss does not reach and
+    Gaussians paint the sky above a floor's far edge (0 = off)."""
     init_thickness: float = setting(0.1, gt=0, le=1)
     """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
     are discs in the plane of their 8 nearest points, this thin along its normal (a

@@ -108,7 +108,7 @@ def _weak_figures(errors: list[np.ndarray], weak: int, known: int) -> dict:
             "weak_rel_error": float(median(np.abs(err))) if len(err) else None}
 
 
-MAP_KEYS = ("depth", "confidence")
+MAP_KEYS = ("depth", "confidence", "sky")
 """What the scores read of a map file (not its normals)."""
 
 

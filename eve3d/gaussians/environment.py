@@ -12,9 +12,9 @@ The map holds the logits of its colours, as 3DGS holds opacities: a colour stays
 [0, 1], so the map cannot turn dark to cancel a bright Gaussian painted in front of a dark
 sky (unbounded, it did: the Gaussians then covered a black background whole).
 
-Saved beside a model's PLY as ``environment.npz`` (``logits`` (h, w, 3) float32 and ``frame``
-(3, 3): rows the map's x, y and up axes in world coordinates) with ``environment.png``, its
-colours.
+Saved beside a model's PLY as ``environment.npz`` (``logits`` (h, w, 3) float32, ``frame``
+(3, 3): rows the map's x, y and up axes in world coordinates, and ``seen`` (h, w) bool where
+known: the texels a training photo showed) with ``environment.png``, its colours.
 """
 from __future__ import annotations
 
@@ -90,7 +90,8 @@ class Environment:
         """The map to show views it was not trained on: each texel no training photo showed
         takes the colour of the nearest one that it did (a held-out view's sky in a direction
         between the training views' was black: 1.6 dB of monstree's held-out PSNR). While
-        training those texels keep the background, behind the surfaces (:func:`photo_environment`)."""
+        training those texels keep the background, behind the surfaces (:func:`photo_environment`).
+        ``seen`` stays: what was shown, not guessed (:meth:`explains`)."""
         if self.seen is None or not self.seen.any() or self.seen.all():
             return self
         from scipy.ndimage import distance_transform_edt
@@ -98,7 +99,7 @@ class Environment:
         _, (rows, columns) = distance_transform_edt(~self.seen.cpu().numpy(), return_indices=True)
         logits = self.logits.detach()[torch.from_numpy(rows).to(self.logits.device),
                                       torch.from_numpy(columns).to(self.logits.device)]
-        return Environment(logits, self.frame)
+        return Environment(logits, self.frame, self.seen)
 
     def coordinates(self, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The map's (row, column) coordinates of world ``directions`` (..., 3), texel centres
@@ -112,7 +113,8 @@ class Environment:
     def texel(self, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The (row, column) of the texel nearest each of ``directions`` (..., 3), int64."""
         row, column = self.coordinates(directions)
-        return row.round().long(), torch.remainder(column.round().long(), self.logits.shape[1])
+        h, w = self.logits.shape[:2]
+        return row.round().long().clamp(0, h - 1), torch.remainder(column.round().long(), w)
 
     def __call__(self, directions: torch.Tensor) -> torch.Tensor:
         """Colours (..., 3) seen along world ``directions`` (..., 3), any length: the logits
@@ -131,6 +133,21 @@ class Environment:
     def image(self, cam: CameraTensors) -> torch.Tensor:
         """(H, W, 3) what the camera sees of the environment at its pixel centres."""
         return self(cam.world_rays())
+
+    def explains(self, cam: CameraTensors, photo: torch.Tensor, tolerance: float) -> torch.Tensor:
+        """(H, W) bool: the pixels of ``photo`` (H, W, 3, in [0, 1]) that the map alone explains,
+        its colour within ``tolerance`` of the photo's (the largest channel's difference, over
+        3×3 pixels), in a direction a training photo showed beyond the scene (``seen``; a
+        texel filled from its neighbours is a guess, which a facade's colours cross by
+        chance): a sky, whatever Gaussians painted in front of it."""
+        rays = cam.world_rays()
+        difference = (photo.to(self.logits) - self(rays)).abs().amax(-1)
+        mean = torch.nn.functional.avg_pool2d(difference[None, None], 3, stride=1, padding=1,
+                                              count_include_pad=False)[0, 0]
+        explained = mean < tolerance
+        if self.seen is not None:
+            explained &= self.seen[self.texel(rays)]
+        return explained
 
     def behind(self, cam: CameraTensors, alpha: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
         """(H, W, 3) the environment behind Gaussians of ``alpha`` (H, W): looked up only
@@ -152,7 +169,9 @@ class Environment:
         """``path`` (.npz, written atomically) and its preview beside it (PNG, 0–255)."""
         path = Path(path)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez(f, logits=self.logits.detach().cpu().float().numpy(), frame=self.frame.detach().cpu().numpy())
+            seen = {} if self.seen is None else {"seen": self.seen.cpu().numpy()}
+            np.savez(f, logits=self.logits.detach().cpu().float().numpy(), frame=self.frame.detach().cpu().numpy(),
+                     **seen)
         write_image(path.with_suffix(PREVIEW_SUFFIX),
                     (self.colours.detach().cpu().numpy() * 255).round().astype(np.uint8))
 
@@ -162,11 +181,14 @@ class Environment:
         try:
             with np.load(path, allow_pickle=False) as data:
                 logits, frame = data["logits"], data["frame"]
+                seen = torch.from_numpy(data["seen"].astype(bool)) if "seen" in data.files else None
         except (OSError, ValueError, KeyError) as e:
             raise Eve3dError(f"{path}: not an environment map ({e})") from None
         if frame.shape != (3, 3):
             raise Eve3dError(f"{path}: frame must be 3×3, got {frame.shape}")
-        return cls(torch.from_numpy(logits).float(), torch.from_numpy(frame).float())
+        if seen is not None and seen.shape != logits.shape[:2]:
+            raise Eve3dError(f"{path}: seen must be {logits.shape[:2]}, got {tuple(seen.shape)}")
+        return cls(torch.from_numpy(logits).float(), torch.from_numpy(frame).float(), seen)
 
 
 def photo_environment(photos: list[tuple[CameraTensors, torch.Tensor, torch.Tensor]], height: int,
@@ -185,7 +207,7 @@ def photo_environment(photos: list[tuple[CameraTensors, torch.Tensor, torch.Tens
     total, count = torch.zeros(h * w, 3), torch.zeros(h * w)
     for cam, image, mask in photos:
         row, column = env.texel(cam.rays().cpu()[mask.cpu()] @ cam.R.cpu().float())
-        index = row.clamp(0, h - 1) * w + column
+        index = row * w + column
         total.index_add_(0, index, image.detach().cpu().float()[mask.cpu()])
         count.index_add_(0, index, torch.ones(len(index)))
     seen = (count > 0).reshape(h, w).numpy()

@@ -100,6 +100,10 @@ def test_saved_beside_the_ply_and_read_back_with_it(tmp_path):
     back = GaussianModel.load_ply(tmp_path / "point_cloud.ply")
     assert torch.equal(back.environment.logits, model.environment.logits)
     assert torch.equal(back.environment.frame, model.environment.frame)
+    assert back.environment.seen is None
+    model.environment.seen = torch.rand(8, 16, generator=torch.Generator().manual_seed(3)) < 0.5
+    model.save_ply(tmp_path / "point_cloud.ply")
+    assert torch.equal(GaussianModel.load_ply(tmp_path / "point_cloud.ply").environment.seen, model.environment.seen)
     # a model without one, saved over it, leaves no stale map to be read with it
     small_model().save_ply(tmp_path / "point_cloud.ply")
     assert not (tmp_path / "environment.npz").exists() and not (tmp_path / "environment.png").exists()
@@ -180,4 +184,48 @@ def test_a_view_it_was_not_trained_on_sees_the_nearest_shown_colour_not_the_back
     filled = env.filled()
     assert torch.equal(filled.logits[seen], logits[seen])  # what was shown stays
     assert torch.equal(filled.logits[0, 2], logits[1, 2]) and torch.equal(filled.logits[3, 7], logits[1, 3])
-    assert env.filled().seen is None and Environment(logits, torch.eye(3)).filled().logits is logits
+    assert filled.seen is seen and Environment(logits, torch.eye(3)).filled().logits is logits
+
+
+def test_the_depth_maps_mark_what_the_environment_explains_and_no_mesh_fuses_it(tmp_path):
+    """A photo that shows the environment everywhere but a red square in front of it: the
+    exported maps mark as sky the pixels the map explains (all but the square and a pixel
+    round it, the 3×3 mean), and fusion leaves them out even where Gaussians cover them;
+    only in the directions a training photo showed, when the map knows them."""
+    from dataclasses import replace
+
+    from eve3d.core.fileio import write_image
+    from eve3d.core.maps import fusable, load_maps
+    from eve3d.core.scene import Scene
+    from eve3d.joint import export_depths
+
+    cam = camera()
+    model = small_model()
+    model.environment = Environment(direction_texture(16).float(), torch.eye(3))
+    with torch.no_grad():
+        photo = model.environment.image(CameraTensors.from_camera(cam)).numpy()
+    square = np.zeros((cam.height, cam.width), bool)
+    square[6:30, 10:24] = True  # the left half of where the Gaussians stand (rows 10–24, columns 17–31)
+    photo[square] = (0.9, 0.1, 0.1)
+    write_image(tmp_path / "v.png", (photo * 255).round().astype(np.uint8))
+    scene = Scene(root=tmp_path, cameras=[replace(cam, image_path=tmp_path / "v.png")])
+
+    export_depths(model, scene, RenderSettings(), tmp_path / "depth", "depth", sky_tolerance=0.03)
+    maps = load_maps(tmp_path / "depth" / "v.npz")
+    sky = maps["sky"] > 0.5
+    near_square = np.zeros_like(square)
+    near_square[5:31, 9:25] = True
+    assert sky[~near_square].all() and not sky[square].any()
+    covered = (maps["confidence"] >= 0.5) & (maps["depth"] > 0)
+    assert covered[~near_square].sum() > 20 and covered[square].sum() > 20  # Gaussians on both sides
+    np.testing.assert_array_equal(fusable(maps, 0.5), covered & ~sky)
+
+    export_depths(model, scene, RenderSettings(), tmp_path / "off", "depth", sky_tolerance=0)
+    assert "sky" not in load_maps(tmp_path / "off" / "v.npz")
+    # a direction no training photo showed beyond the scene is a guess of the map: no sky there
+    model.environment.seen = torch.zeros(16, 32, dtype=torch.bool)
+    model.environment.seen[:, :24] = True  # azimuths below π/2: the camera looks along +y, its right half
+    export_depths(model, scene, RenderSettings(), tmp_path / "half", "depth", sky_tolerance=0.03)
+    half = load_maps(tmp_path / "half" / "v.npz")["sky"] > 0.5
+    assert half[:, cam.width // 2 + 2:].mean() > 0.5 and not half[:, :cam.width // 2 - 2].any()
+    assert (half <= sky).all()
