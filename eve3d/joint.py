@@ -31,6 +31,7 @@ from eve3d.core.methods import uses_priors
 from eve3d.core.scene import Scene
 from eve3d.core.settings import JointSettings, RenderSettings
 from eve3d.core.timing import phase
+from eve3d.gaussians.environment import explained
 from eve3d.gaussians.geometry import CameraStack, depth_to_normal, depth_to_points
 from eve3d.gaussians.losses import (depth_confirmation, depth_normal_loss, forward_backward_error, geometric_loss,
                                     ncc_loss)
@@ -318,7 +319,7 @@ def export_depths(model: GaussianModel, scene: Scene, rendering: RenderSettings,
             if sky:
                 photo = torch.from_numpy(read_view(cam)).float() / 255
                 tensors = CameraTensors.from_camera(cam, device=out.alpha.device)
-                maps["sky"] = model.environment.explains(tensors, photo.to(out.alpha.device), sky_tolerance).cpu().numpy()
+                maps["sky"] = explained(model.environment, tensors, photo.to(out.alpha.device), sky_tolerance).cpu().numpy()
             save_maps(tmp / f"{cam.view_id}.npz", **maps)
 
 

@@ -91,7 +91,7 @@ class Environment:
         takes the colour of the nearest one that it did (a held-out view's sky in a direction
         between the training views' was black: 1.6 dB of monstree's held-out PSNR). While
         training those texels keep the background, behind the surfaces (:func:`photo_environment`).
-        ``seen`` stays: what was shown, not guessed (:meth:`explains`)."""
+        ``seen`` stays: what was shown, not guessed (:func:`explained`)."""
         if self.seen is None or not self.seen.any() or self.seen.all():
             return self
         from scipy.ndimage import distance_transform_edt
@@ -134,21 +134,6 @@ class Environment:
         """(H, W, 3) what the camera sees of the environment at its pixel centres."""
         return self(cam.world_rays())
 
-    def explains(self, cam: CameraTensors, photo: torch.Tensor, tolerance: float) -> torch.Tensor:
-        """(H, W) bool: the pixels of ``photo`` (H, W, 3, in [0, 1]) that the map alone explains,
-        its colour within ``tolerance`` of the photo's (the largest channel's difference, over
-        3×3 pixels), in a direction a training photo showed beyond the scene (``seen``; a
-        texel filled from its neighbours is a guess, which a facade's colours cross by
-        chance): a sky, whatever Gaussians painted in front of it."""
-        rays = cam.world_rays()
-        difference = (photo.to(self.logits) - self(rays)).abs().amax(-1)
-        mean = torch.nn.functional.avg_pool2d(difference[None, None], 3, stride=1, padding=1,
-                                              count_include_pad=False)[0, 0]
-        explained = mean < tolerance
-        if self.seen is not None:
-            explained &= self.seen[self.texel(rays)]
-        return explained
-
     def behind(self, cam: CameraTensors, alpha: torch.Tensor, fit: torch.Tensor | None = None) -> torch.Tensor:
         """(H, W, 3) the environment behind Gaussians of ``alpha`` (H, W): looked up only
         where they leave more than ``T_MIN`` of it seen (elsewhere 0: it would add less than
@@ -189,6 +174,22 @@ class Environment:
         if seen is not None and seen.shape != logits.shape[:2]:
             raise Eve3dError(f"{path}: seen must be {logits.shape[:2]}, got {tuple(seen.shape)}")
         return cls(torch.from_numpy(logits).float(), torch.from_numpy(frame).float(), seen)
+
+
+def explained(env: Environment, cam: CameraTensors, photo: torch.Tensor, tolerance: float) -> torch.Tensor:
+    """(H, W) bool: the pixels of ``photo`` (H, W, 3, in [0, 1]) that ``env`` alone explains,
+    its colour within ``tolerance`` of the photo's (the largest channel's difference, over
+    3×3 pixels), in a direction a training photo showed beyond the scene (``seen``; a
+    texel filled from its neighbours is a guess, which a facade's colours cross by
+    chance): a sky, whatever Gaussians painted in front of it."""
+    rays = cam.world_rays()
+    difference = (photo.to(env.logits) - env(rays)).abs().amax(-1)
+    mean = torch.nn.functional.avg_pool2d(difference[None, None], 3, stride=1, padding=1,
+                                          count_include_pad=False)[0, 0]
+    sky = mean < tolerance
+    if env.seen is not None:
+        sky &= env.seen[env.texel(rays)]
+    return sky
 
 
 def photo_environment(photos: list[tuple[CameraTensors, torch.Tensor, torch.Tensor]], height: int,
