@@ -308,12 +308,13 @@ def sfm_threads(settings: SfmSettings) -> int:
 
 
 def extraction_options(settings: SfmSettings):
-    """SIFT's options: images scaled to at most ``settings.max_image_size``, on
-    ``settings.threads`` threads."""
+    """SIFT's options: images scaled to at most ``settings.max_image_size``, affine shapes
+    as ``settings.affine_features`` says, on ``settings.threads`` threads."""
     pycolmap = import_pycolmap()
 
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = settings.max_image_size
+    extraction.sift.estimate_affine_shape = settings.affine_features
     extraction.num_threads = sfm_threads(settings)
     return extraction
 

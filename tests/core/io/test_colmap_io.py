@@ -47,6 +47,16 @@ def test_sfm_uses_the_threads_the_job_has(monkeypatch):
     assert sfm_threads(SfmSettings()) == -1 and sfm_threads(SfmSettings(threads=2)) == 2
 
 
+def test_sift_estimates_affine_shapes_only_when_asked():
+    """``sfm.affine_features`` reaches SIFT's options; off by default (monstree's photos lose
+    points and held-out PSNR with it)."""
+    from eve3d.core.io.colmap import extraction_options
+    from eve3d.core.settings import SfmSettings
+
+    assert not extraction_options(SfmSettings()).sift.estimate_affine_shape
+    assert extraction_options(SfmSettings(affine_features=True)).sift.estimate_affine_shape
+
+
 def test_auto_matches_every_pair_up_to_the_limit_then_in_sequence():
     from eve3d.core.settings import SfmSettings
 
