@@ -95,7 +95,7 @@ class SfmSettings(Checked):
     generated scenes (320 px) it gives a fifth more points within 0.02 of the surface, twice the
     points on a floor's rim before a backdrop and +0.008 F (`eve3d`), +0.003 (`pgsr`) over two
     seeds; on monstree's phone photos 14 % fewer points, SfM 92 s against 83 s and held out
-    20.20 dB against 20.59–20.65: off (docs/results.md, "The vase before the backdrop")."""
+    20.11–20.20 dB against 20.67: off (docs/results.md, "The vase before the backdrop")."""
     max_image_size: int = setting(3200, ge=64)
     """Longest side of the photos SfM imports (larger ones are downscaled once, before SIFT):
     the size of the posed dataset's images, the stages' full size."""
