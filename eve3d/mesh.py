@@ -18,7 +18,7 @@ from eve3d.core import chunking
 from eve3d.core.chunking import chunks
 from eve3d.core.errors import Eve3dError
 from eve3d.core.fileio import atomic_path
-from eve3d.core.maps import fusable, load_maps, map_camera
+from eve3d.core.maps import FUSABLE_KEYS, fusable, load_maps, map_camera
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Scene, look_at
 from eve3d.core.settings import MeshSettings
@@ -44,7 +44,7 @@ def view_depths(scene: Scene, depth_dir: Path, min_confidence: float, max_incide
         path = depth_dir / f"{cam.view_id}.npz"
         if not path.exists():
             raise Eve3dError(f"{path}: depth map missing for view {cam.view_id}")
-        maps = load_maps(path, ("depth", "confidence", "sky") + (("normal",) if oblique else ()))
+        maps = load_maps(path, FUSABLE_KEYS + (("normal",) if oblique else ()))
         depth = maps["depth"].astype(np.float32)
         small = map_camera(cam, depth.shape, path)  # fused at the map's size (priors: the pretrain's)
         keep = fusable(maps, min_confidence)

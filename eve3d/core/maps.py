@@ -35,6 +35,10 @@ def load_maps(path: Path, keys: Sequence[str] | None = None) -> dict[str, np.nda
         raise Eve3dError(f"{path}: cannot read map file ({e})") from None
 
 
+FUSABLE_KEYS = ("depth", "confidence", "sky")
+"""What :func:`fusable` reads of a map file (not its normals)."""
+
+
 def fusable(maps: dict[str, np.ndarray], min_confidence: float) -> np.ndarray:
     """(H, W) bool: the pixels of a view's maps that a mesh fuses, and that the depth scores
     count: a positive depth whose confidence, where the maps have one, is at least

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from eve3d.core.errors import Eve3dError
-from eve3d.core.maps import depth_at, fusable, load_maps, map_camera, same_aspect
+from eve3d.core.maps import FUSABLE_KEYS, depth_at, fusable, load_maps, map_camera, same_aspect
 from eve3d.core.settings import MeshSettings
 from eve3d.core.settings_stereo import StereoSettings
 
@@ -63,7 +63,7 @@ def depth_accuracy(maps_dir: Path, exact_dir: Path, label: str = "",
         path = maps_dir / ref_path.name
         if not path.exists():
             raise Eve3dError(f"{path}: missing (the exact depth has this view)")
-        ref, maps = load_maps(ref_path, MAP_KEYS), load_maps(path, MAP_KEYS)
+        ref, maps = load_maps(ref_path, FUSABLE_KEYS), load_maps(path, FUSABLE_KEYS)
         for file, m in ((ref_path, ref), (path, maps)):
             if "depth" not in m:
                 raise Eve3dError(f"{file}: no 'depth' array (it has {', '.join(load_maps(file)) or 'none'})")
@@ -106,10 +106,6 @@ def _weak_figures(errors: list[np.ndarray], weak: int, known: int) -> dict:
     return {"weak_share": weak / max(known, 1), "weak_density": len(err) / max(weak, 1),
             "weak_signed_error": float(median(err)) if len(err) else None,
             "weak_rel_error": float(median(np.abs(err))) if len(err) else None}
-
-
-MAP_KEYS = ("depth", "confidence", "sky")
-"""What the scores read of a map file (not its normals)."""
 
 
 def median(values: np.ndarray) -> float:
