@@ -81,15 +81,19 @@ def looks_out(scene: Scene) -> bool:
     return bool(ahead < 0.5 * np.median(np.linalg.norm(points - centres.mean(axis=0), axis=1)))
 
 
-def measured_hull(scene: Scene, margin: float) -> Hull | None:
+def measured_hull(scene: Scene, margin: float, two_view: bool = False) -> Hull | None:
     """The measured scene: the convex hull of the scene's reliable points (seen in three
     views or more) inside ``region(2)``, so that far outliers do not stretch it, grown by
     ``margin`` of its size about their centroid. None (nothing lies beyond) when the cameras
     look out from within the scene (:func:`looks_out`), or without enough points to span a
-    volume."""
+    volume. With ``two_view``, the two-view points beside the reliable ones too (all but
+    :meth:`~eve3d.core.scene.Scene.isolated`): where SfM saw a surface less often, such as a
+    floor's far rim before a textured background."""
     from scipy.spatial import ConvexHull, QhullError
 
     points, region = scene.reliable_points(), scene.region(2.0)
+    if two_view and points is not None:
+        points = scene.points[~scene.isolated()]
     if points is None or region is None or looks_out(scene):
         return None
     points = points[np.all((points >= region[0]) & (points <= region[1]), axis=1)]

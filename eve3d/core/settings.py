@@ -265,7 +265,9 @@ class TrainSettings(RenderSettings):
     whose photo the environment at infinity explains: within this of its colour, the largest
     channel's difference over 3×3 pixels, in a direction a training photo showed beyond the
     measured scene. Inside the scene's hull too, where the sky loss does not reach and
-    Gaussians paint the sky above a floor's far edge (0 = off)."""
+    Gaussians paint the sky above a floor's far edge. Training tests the same where only
+    the hull with SfM's two-view points meets a ray: beyond there is what the map explains
+    (``eve3d.gaussians.environment.scene_environment``). 0 = off."""
     init_thickness: float = setting(0.1, gt=0, le=1)
     """Initial Gaussians from points on a surface (sparse points, prior or rendered depth)
     are discs in the plane of their 8 nearest points, this thin along its normal (a

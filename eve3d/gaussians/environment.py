@@ -224,17 +224,36 @@ def photo_environment(photos: list[tuple[CameraTensors, torch.Tensor, torch.Tens
 def scene_environment(scene: Scene, views: Views, settings: TrainSettings) -> Environment | None:
     """The environment a training stage learns behind the Gaussians of ``scene``: each of
     ``views`` (and its coarse views) marks its pixels beyond the measured scene
-    (``View.beyond``, the rays that miss ``measured_hull`` grown by ``settings.sky_margin``),
-    and the map starts as what the training views show there (:func:`photo_environment`).
-    None where nothing lies beyond (a room seen from inside, no sparse points) or
-    ``settings.environment`` is 0: the constant ``background`` then."""
+    (``View.beyond``), and the map starts as what the training views show there
+    (:func:`photo_environment`). None where nothing lies beyond (a room seen from inside, no
+    sparse points) or ``settings.environment`` is 0: the constant ``background`` then.
+
+    Beyond are the rays that miss ``measured_hull`` grown by ``settings.sky_margin``, but
+    for those that only the hull with SfM's two-view points meets: there a pixel is beyond
+    only if the map explains it (:func:`explained`, ``settings.sky_tolerance``; the map
+    then fitted again). A floor's far rim that SfM saw in two views only shows another
+    colour than the sky the other views see in its direction, so it stays the Gaussians'
+    to cover; the sky there stays beyond (docs/method.md, "The environment at infinity")."""
     hull = measured_hull(scene, settings.sky_margin) if settings.environment else None
     if hull is None:
         return None
     with phase("environment"):
-        for group in [views] + ([views.coarse[1]] if views.coarse else []):
+        groups = [views] + ([views.coarse[1]] if views.coarse else [])
+        for group in groups:
             for view in group:
                 view.beyond = torch.from_numpy(hull.missed(view.camera)).to(view.image.device)
         frame = up_frame(np.stack([cam.R for cam in scene.cameras]))
-        photos = [(views[i].cam, views[i].image, views[i].beyond) for i in views.train_ids]
-        return photo_environment(photos, settings.environment, frame, settings.background)
+
+        def fitted() -> Environment:
+            photos = [(views[i].cam, views[i].image, views[i].beyond) for i in views.train_ids]
+            return photo_environment(photos, settings.environment, frame, settings.background)
+
+        env = fitted()
+        wider = measured_hull(scene, settings.sky_margin, two_view=True) if settings.sky_tolerance else None
+        if wider is None:
+            return env
+        for group in groups:
+            for view in group:
+                missed = torch.from_numpy(wider.missed(view.camera)).to(view.beyond.device)
+                view.beyond &= missed | explained(env, view.cam, view.image, settings.sky_tolerance)
+        return fitted()

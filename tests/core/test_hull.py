@@ -79,3 +79,19 @@ def test_the_pixels_that_miss_the_hull_are_those_whose_rays_do():
         assert np.array_equal(missed, misses(hull.equations, cam.center, cam.pixel_rays()))
         assert 0.05 < missed.mean() < 0.95
     assert not hull.missed(inner).any()
+
+
+def test_with_two_view_points_the_hull_takes_those_beside_the_reliable_ones_and_not_isolated_ones():
+    """A box seen in three views or more, a rim of two-view points just beyond it (a floor's
+    far edge that SfM saw less often) and a two-view point far from everything: the hull of
+    the reliable points leaves the rim out; with ``two_view`` it takes the rim in and still
+    leaves the far point out."""
+    box = box_points(np.array([1.0, 1.0, 0.5]), n=4000)
+    rim = np.array([[1.04, y, -0.5] for y in np.linspace(-1, 1, 60)])  # 0.02 apart, beside the box's face
+    points = np.vstack([box, rim, [[1.8, 0.0, 0.0]]])
+    views = [np.arange(3)] * len(box) + [np.arange(2)] * (len(rim) + 1)
+    scene = Scene(None, ring(), points=points, point_views=views)
+    probes = np.array([[1.03, 0.5, -0.5], [1.5, 0, 0]]).T  # on the rim; towards the far point
+    for two_view, inside_expected in ((False, [False, False]), (True, [True, False])):
+        eq = measured_hull(scene, 0.0, two_view=two_view).equations
+        assert ((eq[:, :3] @ probes + eq[:, 3:4]) <= 1e-9).all(0).tolist() == inside_expected
