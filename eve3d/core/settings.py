@@ -255,11 +255,12 @@ class TrainSettings(RenderSettings):
     constant ``background`` (the paper's and PGSR's)."""
     sky_weight: float = setting(0.1, ge=0)
     """Weight of the loss on the rendered alpha beyond the measured scene: mean(α · beyond)
-    over the pixels, ``beyond`` the rays that miss the sparse points' hull (``sky_margin``),
-    where only the environment is to be seen (no Gaussian paints the sky there)."""
+    over the pixels, ``beyond`` the pixels past the measured scene (``sky_margin``,
+    ``sky_tolerance``), where only the environment is to be seen (no Gaussian paints the sky
+    there)."""
     sky_margin: float = setting(0.1, ge=0)
     """The measured scene: the sparse points' hull grown by this share of its size
-    (``eve3d.core.scene.Scene.hull``)."""
+    (``eve3d.core.hull.measured_hull``)."""
     sky_tolerance: float = setting(0.03, ge=0, le=1)
     """The depth maps a method exports mark as sky (``sky``, which no mesh fuses) the pixels
     whose photo the environment at infinity explains: within this of its colour, the largest

@@ -255,5 +255,6 @@ def scene_environment(scene: Scene, views: Views, settings: TrainSettings) -> En
         for group in groups:
             for view in group:
                 missed = torch.from_numpy(wider.missed(view.camera)).to(view.beyond.device)
-                view.beyond &= missed | explained(env, view.cam, view.image, settings.sky_tolerance)
+                sky = explained(env, view.cam, view.image, settings.sky_tolerance)  # on the map's device
+                view.beyond &= missed | sky.to(missed.device)
         return fitted()

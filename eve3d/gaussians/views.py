@@ -31,8 +31,8 @@ class View:
     image: torch.Tensor
     """(H, W, 3) float in [0, 1]."""
     beyond: torch.Tensor | None = None
-    """(H, W) bool: the rays that miss the measured scene (``Scene.hull``), where only the
-    environment can be seen; None when not known."""
+    """(H, W) bool: the pixels beyond the measured scene, where only the environment can be
+    seen (``eve3d.gaussians.environment.scene_environment``); None when not known."""
 
     @functools.cached_property
     def grey(self) -> torch.Tensor:

@@ -87,7 +87,7 @@ def test_with_two_view_points_the_hull_takes_those_beside_the_reliable_ones_and_
     the reliable points leaves the rim out; with ``two_view`` it takes the rim in and still
     leaves the far point out."""
     box = box_points(np.array([1.0, 1.0, 0.5]), n=4000)
-    rim = np.array([[1.04, y, -0.5] for y in np.linspace(-1, 1, 60)])  # 0.02 apart, beside the box's face
+    rim = np.array([[1.04, y, -0.5] for y in np.linspace(-1, 1, 60)])  # 0.034 apart, 0.04 beside the box's face
     points = np.vstack([box, rim, [[1.8, 0.0, 0.0]]])
     views = [np.arange(3)] * len(box) + [np.arange(2)] * (len(rim) + 1)
     scene = Scene(None, ring(), points=points, point_views=views)
