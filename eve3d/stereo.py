@@ -244,9 +244,13 @@ def stereo_priors(scene: Scene, stereo_dir: Path, out_dir: Path,
             with phase("read photos"):
                 left = photo(i)
             alpha = left_alpha(stereo_dir, cam) if check.min_alpha > 0 else None
-            if pairs.pairs != "real":
+            # A view whose every neighbour stands along its line of sight (a capture walking
+            # forward) has no pair that rectifies: it takes its virtual prior, which has none of
+            # that geometry's trouble, rather than none.
+            unpaired = real is not None and not real[i]
+            if pairs.pairs != "real" or unpaired:
                 depth, confidence = virtual_prior(cam, left, stereo_dir, pair, matcher, check, alpha)
-            if real is not None:
+            if real is not None and not unpaired:
                 witness, trust = real_prior(cam, left, [(cameras[j], photo(j)) for j in real[i]], pair, matcher,
                                             check, pairs, alpha)
                 if pairs.pairs == "real":

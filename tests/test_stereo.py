@@ -256,6 +256,24 @@ def test_real_pairs_carry_the_exact_depth_back_to_the_view(object_scene, max_dis
     assert (confidence > 0)[~hits.valid].mean() < 0.002  # measured 0.06 %
 
 
+
+def test_a_view_without_a_real_pair_takes_its_virtual_prior(tmp_path):
+    """``stereo.pairs: real`` on a view no neighbour rectifies with (here: it has none; in a
+    capture walking forward, every neighbour stands along its line of sight): its prior is
+    the virtual pair's, fx·B/d, not an empty map."""
+    from eve3d.core.settings_stereo import RealPairSettings
+    from eve3d.priors.sgbm import SgbmStereo
+    from eve3d.stereo import stereo_priors
+
+    scene, write_pairs = stereo_scene(tmp_path, 10)
+    write_pairs()
+    stereo_priors(scene, tmp_path / "stereo", tmp_path / "priors", SgbmStereo(), "SGBM", preview=False,
+                  pairs=RealPairSettings(pairs="real"))
+    maps = load_maps(tmp_path / "priors/v.npz")
+    sure = maps["confidence"] > 0.5
+    assert sure.mean() > 0.5
+    np.testing.assert_allclose(np.median(maps["depth"][sure]), 100 * 0.5 / 10, rtol=1e-3)
+
 def test_real_pairs_agree_by_majority():
     """Two pairs that disagree on a pixel leave it without a prior; of three, the two that
     agree give their mean; one pair alone keeps its depth."""

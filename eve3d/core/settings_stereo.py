@@ -180,7 +180,8 @@ class RealPairSettings(Checked):
     SECTION: ClassVar[str] = "stereo"
     pairs: str = setting("real", choices=PAIR_SOURCES)
     """``real``: the photo and its real neighbours, rectified with the known poses (the
-    default: its errors are the matcher's, not the pretrained model's, docs/priors.md);
+    default: its errors are the matcher's, not the pretrained model's, docs/priors.md; a view
+    that no neighbour rectifies with, as in a capture walking forward, takes its virtual prior);
     ``virtual``: the photo and a right view the pretrained model renders (the paper's);
     ``both``: the virtual prior where the real pairs' depth witnesses it (within ``real_tolerance``)."""
     real_neighbours: int = setting(3, ge=1)
