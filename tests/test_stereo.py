@@ -256,7 +256,6 @@ def test_real_pairs_carry_the_exact_depth_back_to_the_view(object_scene, max_dis
     assert (confidence > 0)[~hits.valid].mean() < 0.002  # measured 0.06 %
 
 
-
 def test_a_view_without_a_real_pair_takes_its_virtual_prior(tmp_path):
     """``stereo.pairs: real`` on a view no neighbour rectifies with (here: it has none; in a
     capture walking forward, every neighbour stands along its line of sight): its prior is
@@ -273,6 +272,7 @@ def test_a_view_without_a_real_pair_takes_its_virtual_prior(tmp_path):
     sure = maps["confidence"] > 0.5
     assert sure.mean() > 0.5
     np.testing.assert_allclose(np.median(maps["depth"][sure]), 100 * 0.5 / 10, rtol=1e-3)
+
 
 def test_real_pairs_agree_by_majority():
     """Two pairs that disagree on a pixel leave it without a prior; of three, the two that

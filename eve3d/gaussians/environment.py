@@ -252,9 +252,13 @@ def scene_environment(scene: Scene, views: Views, settings: TrainSettings) -> En
         wider = measured_hull(scene, settings.sky_margin, two_view=True) if settings.sky_tolerance else None
         if wider is None:
             return env
+        changed = False
         for group in groups:
             for view in group:
                 missed = torch.from_numpy(wider.missed(view.camera)).to(view.beyond.device)
+                if not (view.beyond & ~missed).any():  # the two-view points add nothing here
+                    continue
                 sky = explained(env, view.cam, view.image, settings.sky_tolerance)  # on the map's device
                 view.beyond &= missed | sky.to(missed.device)
-        return fitted()
+                changed = True
+        return fitted() if changed else env
