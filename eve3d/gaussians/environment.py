@@ -69,6 +69,7 @@ class Environment:
         if logits.ndim != 3 or logits.shape[2] != 3 or logits.shape[1] != 2 * logits.shape[0]:
             raise Eve3dError(f"environment map must be (h, 2h, 3), got {tuple(logits.shape)}")
         self.logits, self.frame, self.seen = logits, frame.to(logits), seen
+        self._pixels: dict[int, tuple[CameraTensors, torch.Tensor, torch.Tensor]] = {}
 
     @property
     def colours(self) -> torch.Tensor:
@@ -116,10 +117,23 @@ class Environment:
         h, w = self.logits.shape[:2]
         return row.round().long().clamp(0, h - 1), torch.remainder(column.round().long(), w)
 
+    def pixel_coordinates(self, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`coordinates` of ``cam``'s pixel rays (H, W), computed once per camera: a
+        training view's rays never change, and their trigonometry was a tenth of a render's
+        cost around the compositing."""
+        known = self._pixels.get(id(cam))
+        if known is None or known[0] is not cam:
+            known = self._pixels[id(cam)] = (cam, *self.coordinates(cam.world_rays()))
+        return known[1], known[2]
+
     def __call__(self, directions: torch.Tensor) -> torch.Tensor:
         """Colours (..., 3) seen along world ``directions`` (..., 3), any length: the logits
         bilinear in the map, the azimuth wrapping round, then their sigmoid."""
-        row, column = self.coordinates(directions)
+        return self.at(*self.coordinates(directions))
+
+    def at(self, row: torch.Tensor, column: torch.Tensor) -> torch.Tensor:
+        """Colours (..., 3) at the map's coordinates ``row`` and ``column`` (...) of
+        :meth:`coordinates`."""
         h, w = self.logits.shape[:2]
         # the map with its first column repeated after its last: the azimuth wraps without a seam
         wrapped = torch.cat([self.logits, self.logits[:, :1]], dim=1).permute(2, 0, 1)[None]
@@ -128,7 +142,7 @@ class Environment:
         grid = torch.stack([x, y], -1).reshape(1, 1, -1, 2)
         out = torch.nn.functional.grid_sample(wrapped, grid, mode="bilinear", padding_mode="border",
                                               align_corners=False)
-        return torch.sigmoid(out[0, :, 0].T.reshape(*directions.shape[:-1], 3))
+        return torch.sigmoid(out[0, :, 0].T.reshape(*row.shape, 3))
 
     def image(self, cam: CameraTensors) -> torch.Tensor:
         """(H, W, 3) what the camera sees of the environment at its pixel centres."""
@@ -143,11 +157,11 @@ class Environment:
         seen = (1 - alpha.detach()) > T_MIN
         learn = seen if fit is None else seen & fit
         out = alpha.new_zeros(*alpha.shape, 3)
-        rays = cam.world_rays()
+        row, column = self.pixel_coordinates(cam)
         if fit is not None:
             with torch.no_grad():
-                out[seen & ~learn] = self(rays[seen & ~learn])
-        out[learn] = self(rays[learn])
+                out[seen & ~learn] = self.at(row[seen & ~learn], column[seen & ~learn])
+        out[learn] = self.at(row[learn], column[learn])
         return out
 
     def save(self, path: Path) -> None:

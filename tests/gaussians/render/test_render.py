@@ -110,6 +110,39 @@ def test_backends_agree_on_a_surface_scene():
         torch.testing.assert_close(ga, gb, rtol=1e-3, atol=1e-4 * gb.abs().max().item())
 
 
+
+def test_small_gaussians_in_either_half_of_a_tile_render_as_the_torch_backend():
+    """The C++ compositing takes half a tile's row where a Gaussian's footprint lies within
+    one half (rasterize.cpp, ``Entry::lanes``): small Gaussians in the left half, the right
+    half, across the middle and across a tile's edge give the torch backend's images and
+    gradients."""
+    cam = pinhole_camera(48, 20)
+    u = torch.tensor([3.5, 11.5, 8.0, 7.6, 15.8, 16.2, 24.0, 31.9, 40.5, 44.0], dtype=torch.float64)
+    v = torch.tensor([4.0, 9.0, 10.5, 15.0, 8.0, 12.0, 3.0, 16.5, 10.0, 6.0], dtype=torch.float64)
+    z = torch.full_like(u, 2.5)
+    means = torch.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], -1)
+    g = torch.Generator().manual_seed(5)
+    quats = torch.randn(len(u), 4, generator=g, dtype=torch.float64)
+    scales = 0.01 + 0.03 * torch.rand(len(u), 3, generator=g, dtype=torch.float64)
+    opacities = 0.5 + 0.45 * torch.rand(len(u), generator=g, dtype=torch.float64)
+    colors = torch.rand(len(u), 3, generator=g, dtype=torch.float64)
+    weights = torch.rand(20, 48, 5, generator=g, dtype=torch.float64)
+    results = {}
+    for backend in BACKENDS:
+        params = [x.clone().requires_grad_(True) for x in (means, quats, scales, opacities, colors)]
+        out = render(*params, cam, backend=backend)
+        maps = torch.cat([out.rgb, out.alpha[..., None], out.depth[..., None]], -1)
+        (maps * weights).sum().backward()
+        results[backend] = out, [x.grad for x in params]
+    (a, a_grads), (b, b_grads) = results["cpu"], results["torch"]
+    assert a.n_pairs == b.n_pairs > 100
+    assert int((a.alpha > 0.1).sum()) > 40  # every Gaussian covers a few pixels
+    for name in ("rgb", "alpha", "depth"):
+        torch.testing.assert_close(getattr(a, name), getattr(b, name), rtol=1e-10, atol=1e-12)
+    for ga, gb in zip(a_grads, b_grads):
+        assert gb.abs().max() > 0
+        torch.testing.assert_close(ga, gb, rtol=1e-8, atol=1e-10 * gb.abs().max().item())
+
 def test_torch_backend_in_bands_equals_single_pass():
     cam = pinhole_camera(40, 30, dtype=torch.float32)
     g = [x.float().requires_grad_(True) for x in random_gaussians(200, seed=5)]

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <type_traits>
 #include <vector>
 
 #ifdef _OPENMP
@@ -114,20 +115,26 @@ std::vector<scalar_t> sigma_cutoffs(const scalar_t* o, int64_t n) {
     return cut;
 }
 
-// One tile's list entry: the Gaussian's 2D parameters, and the rows of the tile its
-// conservative footprint reaches: the ellipse sigma <= K, K exceeding the cutoff by a margin
-// (1% + 0.01), bounded in double. Rows outside it have sigma beyond the cutoff at every pixel,
-// so the per-pixel test would reject them anyway; a conic that is not positive definite
-// reaches every row.
+// One tile's list entry: the Gaussian's 2D parameters, and the rows and lanes (columns) of the
+// tile its conservative footprint reaches: the ellipse sigma <= K, K exceeding the cutoff by a
+// margin (1% + 0.01), bounded in double. Pixels outside it have sigma beyond the cutoff, so the
+// per-pixel test would reject them anyway; a conic that is not positive definite reaches every
+// pixel. The lanes are the half of a row [lo, lo + HALF) when the footprint lies within one,
+// else all of them: half the vector work, the same result (a trained model's Gaussians span
+// 5-6 pixels of a row).
+constexpr int32_t HALF = LANES / 2;
+
 template <typename scalar_t>
 struct Entry {
     scalar_t mx, my, a, b, c, o, cut;
     int64_t g, ylo, yhi;  // ylo > yhi: no row
+    int32_t lo, lanes;    // lanes 0: no pixel
 };
 
 template <typename scalar_t>
 void tile_entries(const scalar_t* m, const scalar_t* c, const scalar_t* o, const scalar_t* cut, const int64_t* ids,
-                  int64_t begin, int64_t end, int64_t y0, int64_t y1, std::vector<Entry<scalar_t>>& out) {
+                  int64_t begin, int64_t end, int64_t x0, int64_t tw, int64_t y0, int64_t y1,
+                  std::vector<Entry<scalar_t>>& out) {
     out.resize(end - begin);
     for (int64_t k = begin; k < end; ++k) {
         const int64_t g = ids[k];
@@ -139,35 +146,38 @@ void tile_entries(const scalar_t* m, const scalar_t* c, const scalar_t* o, const
             __builtin_prefetch(cut + ga);
         }
         auto& e = out[k - begin];
-        e = {m[2 * g], m[2 * g + 1], c[3 * g], c[3 * g + 1], c[3 * g + 2], o[g], cut[g], g, y0, y1 - 1};
+        e = {m[2 * g], m[2 * g + 1], c[3 * g], c[3 * g + 1], c[3 * g + 2], o[g], cut[g], g, y0, y1 - 1, 0, LANES};
         const double a = e.a, b = e.b, cc = e.c, my = e.my, det = a * cc - b * b;
         if (!(a > 0 && det > 0 && std::isfinite(det) && std::isfinite((double)e.mx) && std::isfinite(my))) continue;
         const double K = std::max((double)e.cut, 0.0) * 1.01 + 0.01;
-        const double ext = std::sqrt(2 * K * a / det);
+        const double ext = std::sqrt(2 * K * a / det), ext_x = std::sqrt(2 * K * cc / det);
         e.ylo = std::max(y0, (int64_t)std::ceil(my - ext - 0.5 - 1e-3));
         e.yhi = std::min(y1 - 1, (int64_t)std::floor(my + ext - 0.5 + 1e-3));
+        const double centre = (double)e.mx - (double)x0 - 0.5;  // in lanes
+        const double first = std::max(std::ceil(centre - ext_x - 1e-3), 0.0);
+        const double last = std::min(std::floor(centre + ext_x + 1e-3), (double)tw - 1);
+        e.lanes = first > last ? 0 : last < HALF ? HALF : first >= HALF ? (e.lo = HALF, HALF) : LANES;
     }
 }
 
-// One Gaussian against the TILE pixels of a row (x0 + i, py): sigma, exp(-sigma), alpha and
-// whether the Gaussian may count there (inside the image, sigma in [0, cutoff], alpha at least
-// 1/255), computed for all lanes at once.
+// One Gaussian against N pixels of a row (x0 + i, py), n of them inside the image: sigma,
+// exp(-sigma), alpha and whether the Gaussian may count there (inside the image, sigma in
+// [0, cutoff], alpha at least 1/255), computed for all lanes at once.
 template <typename scalar_t>
 struct RowSplat {
     scalar_t dx[TILE], ex[TILE], alpha[TILE];
     int32_t ok[TILE];
 };
 
-template <typename scalar_t>
-inline void row_splat(const Entry<scalar_t>& e, int64_t x0, int64_t tw, int64_t py, RowSplat<scalar_t>& s) {
+template <int32_t N, typename scalar_t>
+inline void row_splat(const Entry<scalar_t>& e, int64_t x0, int64_t n, int64_t py, RowSplat<scalar_t>& s) {
     // locals, so that the compiler need not fear the stores below alias the entry
     const scalar_t mx = e.mx, a = e.a, b = e.b, c = e.c, o = e.o, cut = e.cut;
-    const int32_t n = (int32_t)tw;
     const scalar_t dy = (scalar_t)py + (scalar_t)0.5 - e.my;
     scalar_t *sdx = s.dx, *sex = s.ex, *salpha = s.alpha;
     int32_t* sok = s.ok;
 #pragma omp simd
-    for (int32_t i = 0; i < LANES; ++i) {
+    for (int32_t i = 0; i < N; ++i) {
         const scalar_t dx = ((scalar_t)x0 + (scalar_t)i) + (scalar_t)0.5 - mx;
         const scalar_t sigma = (scalar_t)0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
         const scalar_t ex = vexp(-sigma);
@@ -205,7 +215,7 @@ int64_t composite_forward(const scalar_t* m, const scalar_t* c, const scalar_t* 
         for (int64_t t = 0; t < tiles; ++t) {
             const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
             const int64_t tw = std::min(TILE, width - x0), th = std::min(TILE, height - y0);
-            tile_entries(m, c, o, cut.data(), ids, off[t], off[t + 1], y0, y0 + th, entries);
+            tile_entries(m, c, o, cut.data(), ids, off[t], off[t + 1], x0, tw, y0, y0 + th, entries);
             scalar_t T[P];
             int32_t last[P], done[P];
             int64_t row_live[TILE];
@@ -217,17 +227,18 @@ int64_t composite_forward(const scalar_t* m, const scalar_t* c, const scalar_t* 
                 const auto& e = entries[j];
                 const scalar_t* fg = f + e.g * C;
                 if (j + AHEAD < (int64_t)entries.size()) __builtin_prefetch(f + entries[j + AHEAD].g * C);
-                for (int64_t py = e.ylo; py <= e.yhi; ++py) {
-                    const int64_t r = py - y0;
-                    if (!row_live[r]) continue;
-                    row_splat(e, x0, tw, py, s);
-                    scalar_t* Tr = T + r * TILE;
-                    int32_t *dr = done + r * TILE, *lr = last + r * TILE;
-                    scalar_t w[TILE];
+                // row py's lanes lo .. lo + N - 1
+                auto composite_row = [&](auto lanes_tag, int64_t py, int32_t lo) {
+                    constexpr int32_t N = decltype(lanes_tag)::value;
+                    const int64_t r = py - y0, q0 = r * TILE + lo;
+                    row_splat<N>(e, x0 + lo, tw - lo, py, s);
+                    scalar_t* Tr = T + q0;
+                    int32_t *dr = done + q0, *lr = last + q0;
+                    scalar_t w[N];
                     const int32_t jj = (int32_t)(j + 1);
                     int32_t ended = 0, added = 0;
 #pragma omp simd reduction(+ : ended, added)
-                    for (int32_t i = 0; i < LANES; ++i) {
+                    for (int32_t i = 0; i < N; ++i) {
                         const int32_t ok = s.ok[i] & (1 - dr[i]);
                         const scalar_t next_t = Tr[i] * (1 - s.alpha[i]);
                         const int32_t end = ok & (next_t <= (scalar_t)T_MIN ? 1 : 0);
@@ -241,13 +252,20 @@ int64_t composite_forward(const scalar_t* m, const scalar_t* c, const scalar_t* 
                     }
                     if (added)
                         for (int64_t ch = 0; ch < C; ++ch) {
-                            scalar_t* a = acc.data() + ch * P + r * TILE;
+                            scalar_t* a = acc.data() + ch * P + q0;
 #pragma omp simd
-                            for (int32_t i = 0; i < LANES; ++i) a[i] += w[i] * fg[ch];
+                            for (int32_t i = 0; i < N; ++i) a[i] += w[i] * fg[ch];
                         }
                     row_live[r] -= ended;
                     live -= ended;
                     n_pairs += added;
+                };
+                if (e.lanes == HALF) {
+                    for (int64_t py = e.ylo; py <= e.yhi; ++py)
+                        if (row_live[py - y0]) composite_row(std::integral_constant<int32_t, HALF>{}, py, e.lo);
+                } else if (e.lanes == LANES) {
+                    for (int64_t py = e.ylo; py <= e.yhi; ++py)
+                        if (row_live[py - y0]) composite_row(std::integral_constant<int32_t, LANES>{}, py, 0);
                 }
             }
             for (int64_t r = 0; r < th; ++r)
@@ -284,7 +302,7 @@ void composite_backward(const scalar_t* m, const scalar_t* c, const scalar_t* o,
         for (int64_t t = 0; t < tiles; ++t) {
             const int64_t x0 = (t % tiles_x) * TILE, y0 = (t / tiles_x) * TILE;
             const int64_t tw = std::min(TILE, width - x0), th = std::min(TILE, height - y0);
-            tile_entries(m, c, o, cut.data(), gids, off[t], off[t + 1], y0, y0 + th, entries);
+            tile_entries(m, c, o, cut.data(), gids, off[t], off[t + 1], x0, tw, y0, y0 + th, entries);
             scalar_t T[P], behind[P], g_alpha[P];
             int32_t count[P];
             int64_t row_max[TILE], kmax = 0;
@@ -313,42 +331,43 @@ void composite_backward(const scalar_t* m, const scalar_t* c, const scalar_t* o,
                     __builtin_prefetch(buf + g * K + K - 1, 1);
                 }
                 bool any = false;
-                for (int64_t py = e.ylo; py <= e.yhi; ++py) {
-                    const int64_t r = py - y0;
-                    if (j >= row_max[r]) continue;
-                    row_splat(e, x0, tw, py, s);
-                    scalar_t *Tr = T + r * TILE, *br = behind + r * TILE;
-                    const int32_t* cr = count + r * TILE;
-                    scalar_t w[TILE], dl_dw[TILE];
-                    int32_t ok[TILE];
+                // row py's lanes lo .. lo + N - 1
+                auto gradient_row = [&](auto lanes_tag, int64_t py, int32_t lo) {
+                    constexpr int32_t N = decltype(lanes_tag)::value;
+                    const int64_t r = py - y0, q0 = r * TILE + lo;
+                    row_splat<N>(e, x0 + lo, tw - lo, py, s);
+                    scalar_t *Tr = T + q0, *br = behind + q0;
+                    const int32_t* cr = count + q0;
+                    scalar_t w[N], dl_dw[N];
+                    int32_t ok[N];
                     const int32_t jj = (int32_t)j;
                     int32_t n_ok = 0;
 #pragma omp simd reduction(+ : n_ok)
-                    for (int32_t i = 0; i < LANES; ++i) {
+                    for (int32_t i = 0; i < N; ++i) {
                         ok[i] = s.ok[i] & (jj < cr[i] ? 1 : 0);
                         Tr[i] = ok[i] ? Tr[i] / (1 - s.alpha[i]) : Tr[i];  // transmittance in front of g
                         w[i] = ok[i] ? s.alpha[i] * Tr[i] : (scalar_t)0;
-                        dl_dw[i] = g_alpha[r * TILE + i];
+                        dl_dw[i] = g_alpha[q0 + i];
                         n_ok += ok[i];
                     }
-                    if (!n_ok) continue;
+                    if (!n_ok) return;
                     if (!any) {
                         std::fill(lanes.begin(), lanes.end(), (scalar_t)0);
                         any = true;
                     }
                     for (int64_t ch = 0; ch < C; ++ch) {
-                        const scalar_t* G = grad.data() + ch * P + r * TILE;
-                        scalar_t* L = lanes.data() + (6 + ch) * TILE;
+                        const scalar_t* G = grad.data() + ch * P + q0;
+                        scalar_t* L = lanes.data() + (6 + ch) * TILE + lo;
 #pragma omp simd
-                        for (int32_t i = 0; i < LANES; ++i) {
+                        for (int32_t i = 0; i < N; ++i) {
                             dl_dw[i] += G[i] * fg[ch];
                             L[i] += w[i] * G[i];
                         }
                     }
-                    scalar_t* L = lanes.data();
+                    scalar_t* L = lanes.data() + lo;
                     const scalar_t dy = (scalar_t)py + (scalar_t)0.5 - e.my;
 #pragma omp simd
-                    for (int32_t i = 0; i < LANES; ++i) {
+                    for (int32_t i = 0; i < N; ++i) {
                         const scalar_t one_minus = 1 - s.alpha[i];
                         scalar_t dl_dalpha = Tr[i] * dl_dw[i] - br[i] / one_minus;
                         br[i] += w[i] * dl_dw[i];
@@ -369,12 +388,19 @@ void composite_backward(const scalar_t* m, const scalar_t* c, const scalar_t* o,
                         L[(6 + C) * TILE + i] += std::abs(dmx);
                         L[(7 + C) * TILE + i] += std::abs(dmy);
                     }
+                };
+                if (e.lanes == HALF) {
+                    for (int64_t py = e.ylo; py <= e.yhi; ++py)
+                        if (j < row_max[py - y0]) gradient_row(std::integral_constant<int32_t, HALF>{}, py, e.lo);
+                } else if (e.lanes == LANES) {
+                    for (int64_t py = e.ylo; py <= e.yhi; ++py)
+                        if (j < row_max[py - y0]) gradient_row(std::integral_constant<int32_t, LANES>{}, py, 0);
                 }
-                if (any) {
+                if (any) {  // the lanes that ran (the others hold 0)
                     scalar_t* b = buf + e.g * K;
                     for (int64_t q = 0; q < K; ++q) {
                         scalar_t sum = 0;
-                        for (int64_t i = 0; i < TILE; ++i) sum += lanes[q * TILE + i];
+                        for (int64_t i = e.lo; i < e.lo + e.lanes; ++i) sum += lanes[q * TILE + i];
                         b[q] += sum;
                     }
                 }
