@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm import tqdm
 
 from eve3d.core.errors import Eve3dError
@@ -192,8 +191,8 @@ def loss_terms(trainer: Trainer, settings: JointSettings, neighbours: list[list[
             t["opacity"] = settings.opacity_weight * trainer.model.opacities[lowered].sum() / visible.sum()
         covered = out.alpha.detach() > 0.5
         if step >= settings.dn_from and settings.dn_weight:
-            t["depth_normal"] = settings.dn_weight * depth_normal_loss(out.depth, out.normal, view.image, view.cam,
-                                                                       covered)
+            t["depth_normal"] = settings.dn_weight * depth_normal_loss(out.depth, out.normal, view.edge_weight,
+                                                                       view.cam, covered)
         candidates = [j for j in neighbours[view.index] if j in train_set]
         if step >= settings.mv_from and candidates and (settings.geo_weight or settings.ncc_weight):
             pick = candidates[int(torch.randint(len(candidates), (1,), generator=trainer.generator))]
@@ -223,11 +222,7 @@ def prior_weights(view: View, settings: JointSettings) -> torch.Tensor | float:
     ``prior_weight`` where ``prior_flat_weight`` is 0."""
     if not settings.prior_flat_weight:
         return settings.prior_weight
-    grey = view.grey[..., 0][None, None]
-    mean = F.avg_pool2d(grey, 5, 1, 2, count_include_pad=False)
-    square = F.avg_pool2d(grey * grey, 5, 1, 2, count_include_pad=False)
-    std = (square - mean * mean).clamp_min(0).sqrt()[0, 0]
-    flat = (1 - std / FLAT_LEVELS).clamp(0, 1)
+    flat = (1 - view.contrast / FLAT_LEVELS).clamp(0, 1)
     return settings.prior_weight + (settings.prior_flat_weight - settings.prior_weight) * flat
 
 

@@ -508,14 +508,13 @@ def test_a_prior_beyond_the_measured_scene_is_not_trusted(tiny_sky_scene, tmp_pa
 def test_the_prior_weighs_more_where_the_photo_has_no_texture():
     """prior_flat_weight: λ_prior rises from prior_weight on texture to prior_flat_weight on a
     blank wall (5×5 grey-level std 0), linearly below FLAT_LEVELS; off, it is the scalar."""
-    from types import SimpleNamespace
-
+    from eve3d.gaussians.views import View
     from eve3d.joint import FLAT_LEVELS, prior_weights
 
     grey = torch.full((40, 40, 1), 0.5)
     grey[:, 20:, 0] += 0.2 * (torch.rand(40, 20, generator=torch.Generator().manual_seed(0)) - 0.5)  # textured
     grey[:, :10, 0] += FLAT_LEVELS / 2 * torch.tensor([1.0, -1.0]).repeat(5)[None]  # half the level: std FLAT_LEVELS/2
-    view = SimpleNamespace(grey=grey)
+    view = View(0, None, None, grey.expand(-1, -1, 3))  # a grey photo: its grey levels are these
     assert prior_weights(view, JointSettings(prior_weight=0.05)) == 0.05
     w = prior_weights(view, JointSettings(prior_weight=0.05, prior_flat_weight=0.5))
     assert w.shape == (40, 40)

@@ -111,29 +111,20 @@ class Environment:
         h, w = self.logits.shape[:2]
         return polar / math.pi * h - 0.5, (azimuth + math.pi) / (2 * math.pi) * w - 0.5
 
-    def texel(self, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The (row, column) of the texel nearest each of ``directions`` (..., 3), int64."""
-        row, column = self.coordinates(directions)
-        h, w = self.logits.shape[:2]
-        return row.round().long().clamp(0, h - 1), torch.remainder(column.round().long(), w)
-
     def pixel_coordinates(self, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
-        """:meth:`coordinates` of ``cam``'s pixel rays (H, W), computed once per camera: a
-        training view's rays never change, and their trigonometry was a tenth of a render's
-        cost around the compositing."""
+        """:meth:`coordinates` of ``cam``'s pixel rays (H, W), once per camera: its rays never change."""
         known = self._pixels.get(id(cam))
         if known is None or known[0] is not cam:
             known = self._pixels[id(cam)] = (cam, *self.coordinates(cam.world_rays()))
         return known[1], known[2]
 
     def __call__(self, directions: torch.Tensor) -> torch.Tensor:
-        """Colours (..., 3) seen along world ``directions`` (..., 3), any length: the logits
-        bilinear in the map, the azimuth wrapping round, then their sigmoid."""
+        """Colours (..., 3) seen along world ``directions`` (..., 3), any length (:meth:`at`)."""
         return self.at(*self.coordinates(directions))
 
     def at(self, row: torch.Tensor, column: torch.Tensor) -> torch.Tensor:
-        """Colours (..., 3) at the map's coordinates ``row`` and ``column`` (...) of
-        :meth:`coordinates`."""
+        """Colours (..., 3) at the map's coordinates ``row``, ``column`` (...; :meth:`coordinates`):
+        the logits bilinear in the map, the azimuth wrapping round, then their sigmoid."""
         h, w = self.logits.shape[:2]
         # the map with its first column repeated after its last: the azimuth wraps without a seam
         wrapped = torch.cat([self.logits, self.logits[:, :1]], dim=1).permute(2, 0, 1)[None]
@@ -190,6 +181,13 @@ class Environment:
         return cls(torch.from_numpy(logits).float(), torch.from_numpy(frame).float(), seen)
 
 
+def texel(env: Environment, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The (row, column) of ``env``'s texel nearest each of ``directions`` (..., 3), int64."""
+    row, column = env.coordinates(directions)
+    h, w = env.logits.shape[:2]
+    return row.round().long().clamp(0, h - 1), torch.remainder(column.round().long(), w)
+
+
 def explained(env: Environment, cam: CameraTensors, photo: torch.Tensor, tolerance: float) -> torch.Tensor:
     """(H, W) bool: the pixels of ``photo`` (H, W, 3, in [0, 1]) that ``env`` alone explains,
     its colour within ``tolerance`` of the photo's (the largest channel's difference, over
@@ -202,7 +200,7 @@ def explained(env: Environment, cam: CameraTensors, photo: torch.Tensor, toleran
                                           count_include_pad=False)[0, 0]
     sky = mean < tolerance
     if env.seen is not None:
-        sky &= env.seen[env.texel(rays)]
+        sky &= env.seen[texel(env, rays)]
     return sky
 
 
@@ -221,7 +219,7 @@ def photo_environment(photos: list[tuple[CameraTensors, torch.Tensor, torch.Tens
     h, w = env.logits.shape[:2]
     total, count = torch.zeros(h * w, 3), torch.zeros(h * w)
     for cam, image, mask in photos:
-        row, column = env.texel(cam.rays().cpu()[mask.cpu()] @ cam.R.cpu().float())
+        row, column = texel(env, cam.rays().cpu()[mask.cpu()] @ cam.R.cpu().float())
         index = row * w + column
         total.index_add_(0, index, image.detach().cpu().float()[mask.cpu()])
         count.index_add_(0, index, torch.ones(len(index)))

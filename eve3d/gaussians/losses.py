@@ -88,13 +88,14 @@ def edge_weight(image: torch.Tensor) -> torch.Tensor:
     return ((1 - g).clamp(0, 1) ** 2).detach()
 
 
-def depth_normal_loss(depth: torch.Tensor, normal: torch.Tensor, image: torch.Tensor, cam: CameraTensors,
+def depth_normal_loss(depth: torch.Tensor, normal: torch.Tensor, edges: torch.Tensor, cam: CameraTensors,
                       valid: torch.Tensor) -> torch.Tensor:
     """mean((1 − g)² · |N_d − N|₁) over ``valid`` pixels; N is the rendered normal
-    (normalised here), N_d the normal of the rendered depth."""
+    (normalised here), N_d the normal of the rendered depth, ``edges`` the photo's (1 − g)²
+    (:func:`edge_weight`)."""
     n_d = depth_to_normal(depth, cam)
     n = F.normalize(normal, dim=-1)
-    err = (n_d - n).abs().sum(-1) * edge_weight(image)
+    err = (n_d - n).abs().sum(-1) * edges
     mask = valid & (n_d.norm(dim=-1) > 0)
     return (err * mask).sum() / mask.sum().clamp_min(1)
 

@@ -18,6 +18,7 @@ from eve3d.core.errors import Eve3dError
 from eve3d.core.photos import read_view
 from eve3d.core.scene import Camera, Scene
 from eve3d.core.settings import RenderSettings, TrainSettings
+from eve3d.gaussians.losses import edge_weight
 from eve3d.gaussians.render.projection import CameraTensors
 
 
@@ -38,6 +39,20 @@ class View:
     def grey(self) -> torch.Tensor:
         """(H, W, 1) the image's grey level (mean of the channels), for the NCC patches."""
         return self.image.mean(-1, keepdim=True)
+
+    @functools.cached_property
+    def edge_weight(self) -> torch.Tensor:
+        """(H, W) the depth–normal loss's relaxation at the image's edges (:func:`edge_weight`),
+        computed once: the image does not change."""
+        return edge_weight(self.image)
+
+    @functools.cached_property
+    def contrast(self) -> torch.Tensor:
+        """(H, W) the grey level's standard deviation over 5×5 pixels (a plain wall's is near 0)."""
+        grey = self.grey[..., 0][None, None]
+        mean = torch.nn.functional.avg_pool2d(grey, 5, 1, 2, count_include_pad=False)
+        square = torch.nn.functional.avg_pool2d(grey * grey, 5, 1, 2, count_include_pad=False)
+        return (square - mean * mean).clamp_min(0).sqrt()[0, 0]
 
 
 def pick_device(setting: str) -> torch.device:
