@@ -69,7 +69,6 @@ class Environment:
         if logits.ndim != 3 or logits.shape[2] != 3 or logits.shape[1] != 2 * logits.shape[0]:
             raise Eve3dError(f"environment map must be (h, 2h, 3), got {tuple(logits.shape)}")
         self.logits, self.frame, self.seen = logits, frame.to(logits), seen
-        self._pixels: dict[int, tuple[CameraTensors, torch.Tensor, torch.Tensor]] = {}
 
     @property
     def colours(self) -> torch.Tensor:
@@ -112,11 +111,9 @@ class Environment:
         return polar / math.pi * h - 0.5, (azimuth + math.pi) / (2 * math.pi) * w - 0.5
 
     def pixel_coordinates(self, cam: CameraTensors) -> tuple[torch.Tensor, torch.Tensor]:
-        """:meth:`coordinates` of ``cam``'s pixel rays (H, W), once per camera: its rays never change."""
-        known = self._pixels.get(id(cam))
-        if known is None or known[0] is not cam:
-            known = self._pixels[id(cam)] = (cam, *self.coordinates(cam.world_rays()))
-        return known[1], known[2]
+        """:meth:`coordinates` of ``cam``'s pixel rays (H, W), once per camera and map frame."""
+        key = ("environment", tuple(self.logits.shape[:2]), tuple(self.frame.flatten().tolist()))
+        return cam.memo(key, lambda: self.coordinates(cam.world_rays()))
 
     def __call__(self, directions: torch.Tensor) -> torch.Tensor:
         """Colours (..., 3) seen along world ``directions`` (..., 3), any length (:meth:`at`)."""

@@ -8,7 +8,9 @@ outside the image culled; an opacity-aware bounding box (extent min(3.33, √(2 
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 
@@ -35,6 +37,7 @@ class CameraTensors:
     _centres: torch.Tensor | None = field(default=None, init=False, repr=False, compare=False)
     _rays: torch.Tensor | None = field(default=None, init=False, repr=False, compare=False)
     _world_rays: torch.Tensor | None = field(default=None, init=False, repr=False, compare=False)
+    _memo: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def from_camera(cls, camera, dtype: torch.dtype = torch.float32, device=None) -> "CameraTensors":
@@ -83,6 +86,13 @@ class CameraTensors:
         if self._world_rays is None:
             self._world_rays = self.rays() @ self.R
         return self._world_rays
+
+    def memo(self, key: Hashable, compute: Callable[[], Any]) -> Any:
+        """``compute()``, once per ``key`` for this camera: for what follows from its rays alone.
+        A training view's camera lasts the whole run; a one-off camera's values go with it."""
+        if key not in self._memo:
+            self._memo[key] = compute()
+        return self._memo[key]
 
 
 def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
