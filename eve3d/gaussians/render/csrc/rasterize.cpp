@@ -160,6 +160,19 @@ void tile_entries(const scalar_t* m, const scalar_t* c, const scalar_t* o, const
     }
 }
 
+// row(lanes, py, lo) on each row py of entry e that wanted(py) accepts, its lanes lo .. lo + N - 1
+// (N = lanes::value, fixed at compile time so that the row's loops vectorise to that width).
+template <typename scalar_t, typename Wanted, typename Row>
+inline void each_row(const Entry<scalar_t>& e, Wanted wanted, Row& row) {
+    if (e.lanes == HALF) {
+        for (int64_t py = e.ylo; py <= e.yhi; ++py)
+            if (wanted(py)) row(std::integral_constant<int32_t, HALF>{}, py, e.lo);
+    } else if (e.lanes == LANES) {
+        for (int64_t py = e.ylo; py <= e.yhi; ++py)
+            if (wanted(py)) row(std::integral_constant<int32_t, LANES>{}, py, 0);
+    }
+}
+
 // One Gaussian against N pixels of a row (x0 + i, py), n of them inside the image: sigma,
 // exp(-sigma), alpha and whether the Gaussian may count there (inside the image, sigma in
 // [0, cutoff], alpha at least 1/255), computed for all lanes at once.
@@ -260,13 +273,7 @@ int64_t composite_forward(const scalar_t* m, const scalar_t* c, const scalar_t* 
                     live -= ended;
                     n_pairs += added;
                 };
-                if (e.lanes == HALF) {
-                    for (int64_t py = e.ylo; py <= e.yhi; ++py)
-                        if (row_live[py - y0]) composite_row(std::integral_constant<int32_t, HALF>{}, py, e.lo);
-                } else if (e.lanes == LANES) {
-                    for (int64_t py = e.ylo; py <= e.yhi; ++py)
-                        if (row_live[py - y0]) composite_row(std::integral_constant<int32_t, LANES>{}, py, 0);
-                }
+                each_row(e, [&](int64_t py) { return row_live[py - y0] > 0; }, composite_row);
             }
             for (int64_t r = 0; r < th; ++r)
                 for (int64_t i = 0; i < tw; ++i) {
@@ -389,13 +396,7 @@ void composite_backward(const scalar_t* m, const scalar_t* c, const scalar_t* o,
                         L[(7 + C) * TILE + i] += std::abs(dmy);
                     }
                 };
-                if (e.lanes == HALF) {
-                    for (int64_t py = e.ylo; py <= e.yhi; ++py)
-                        if (j < row_max[py - y0]) gradient_row(std::integral_constant<int32_t, HALF>{}, py, e.lo);
-                } else if (e.lanes == LANES) {
-                    for (int64_t py = e.ylo; py <= e.yhi; ++py)
-                        if (j < row_max[py - y0]) gradient_row(std::integral_constant<int32_t, LANES>{}, py, 0);
-                }
+                each_row(e, [&](int64_t py) { return j < row_max[py - y0]; }, gradient_row);
                 if (any) {  // the lanes that ran (the others hold 0)
                     scalar_t* b = buf + e.g * K;
                     for (int64_t q = 0; q < K; ++q) {
