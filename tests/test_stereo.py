@@ -256,6 +256,27 @@ def test_real_pairs_carry_the_exact_depth_back_to_the_view(object_scene, max_dis
     assert (confidence > 0)[~hits.valid].mean() < 0.002  # measured 0.06 %
 
 
+def test_a_pair_whose_baseline_runs_aslant_keeps_the_whole_view_in_its_rectified_frame():
+    """Rectification turns the frame so that the baseline runs along its rows: with the
+    neighbour up and to the right (20°), a frame of the view's own size held 87 % of its
+    pixels (a room's views lost their top rows, the ceiling). The frame now holds the whole
+    view, and a plane 3 units ahead comes back at depth 3 on every pixel."""
+    from eve3d.core.scene import Camera
+    from eve3d.priors.real_pairs import RectifiedPair
+
+    K = np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    view = Camera("a.png", 64, 48, K, np.eye(3), np.zeros(3))
+    centre = 0.2 * np.array([np.cos(np.radians(20)), np.sin(np.radians(20)), 0.0])
+    other = Camera("b.png", 64, 48, K, np.eye(3), -centre)
+    image = np.full((48, 64), 128, np.uint8)
+    rect = RectifiedPair.build(view, image, other, image, (1.0, 10.0), 128.0)
+    assert rect.left.shape[0] > 48 and rect.left.shape[1] > 64  # turned by 20°: a larger frame
+    disparity = np.full(rect.left.shape, 60 * 0.2 / 3, np.float32)
+    depth, confidence = rect.carried_back(disparity, np.ones_like(disparity))
+    assert (depth > 0).all() and (confidence > 0).all()
+    np.testing.assert_allclose(depth, 3.0, rtol=1e-5)
+
+
 def test_a_view_without_a_real_pair_takes_its_virtual_prior(tmp_path):
     """``stereo.pairs: real`` on a view no neighbour rectifies with (here: it has none; in a
     capture walking forward, every neighbour stands along its line of sight): its prior is
