@@ -258,8 +258,8 @@ def test_real_pairs_carry_the_exact_depth_back_to_the_view(object_scene, max_dis
 
 def test_a_pair_whose_baseline_runs_aslant_keeps_the_whole_view_in_its_rectified_frame():
     """Rectification turns the frame so that the baseline runs along its rows: with the
-    neighbour up and to the right (20°), a frame of the view's own size held 87 % of its
-    pixels (a room's views lost their top rows, the ceiling). The frame now holds the whole
+    neighbour down and to the right in the image (20°), a frame of the view's own size held 87 %
+    of its pixels (a room's views lost their top rows, the ceiling). The frame now holds the whole
     view, and a plane 3 units ahead comes back at depth 3 on every pixel."""
     from eve3d.core.scene import Camera
     from eve3d.priors.real_pairs import RectifiedPair

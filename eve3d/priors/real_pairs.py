@@ -64,35 +64,32 @@ def _index_K(K: np.ndarray) -> np.ndarray:
 
 
 MAX_GROWTH = 1.5
-"""The most a rectified frame's side grows beyond the view's to hold the whole view turned:
-the matcher's cost grows with the frame."""
+"""The longest a rectified frame's side may be, in the view's sides: the matcher's cost grows
+with the frame."""
 
 
 def _frame(cam: Camera, R: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
     """Intrinsics (the view's focal length) and size of the rectified frame that holds the
-    whole view turned by ``R`` (world to rectified): the bounding box of its image's edges,
-    within ``MAX_GROWTH`` × its sides about its centre. A frame of the view's own size held a
-    third less of a room's views where the baseline runs aslant in the image, often their top
-    rows (the ceiling)."""
-    f = cam.fx
-    edge = np.linspace(0, 1, 33)
-    border = np.concatenate([np.stack([edge * cam.width, np.full_like(edge, y)], 1) for y in (0, cam.height)]
-                            + [np.stack([np.full_like(edge, x), edge * cam.height], 1) for x in (0, cam.width)])
-    points = np.vstack([[cam.width / 2, cam.height / 2], border])
-    q = np.column_stack([points, np.ones(len(points))]) @ np.linalg.inv(cam.K).T @ (R @ cam.R.T).T
-    uv = f * q[:, :2] / np.maximum(q[:, 2:], 1e-6)  # rectified, the principal point at 0
-    reach = MAX_GROWTH / 2 * np.array([cam.width, cam.height])  # about the view's centre
+    whole view turned by ``R`` (world to rectified): the box of its image's corners (a turn maps
+    the edges to lines), within ``MAX_GROWTH`` × its sides about its centre. A frame of the
+    view's own size held a third less of a room's views where the baseline runs aslant in the
+    image, often their top rows (the ceiling)."""
+    w, h = cam.width, cam.height
+    points = np.array([[w / 2, h / 2, 1], [0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1.0]])  # the centre first
+    q = points @ np.linalg.inv(cam.K).T @ (R @ cam.R.T).T
+    uv = cam.fx * q[:, :2] / np.maximum(q[:, 2:], 1e-6)  # rectified, the principal point at 0
+    reach = MAX_GROWTH / 2 * np.array([w, h])
     lo, hi = np.maximum(uv.min(0), uv[0] - reach), np.minimum(uv.max(0), uv[0] + reach)
     size = np.ceil(hi - lo).astype(int)
-    K = np.array([[f, 0, -lo[0]], [0, f, -lo[1]], [0, 0, 1.0]])
+    K = np.array([[cam.fx, 0, -lo[0]], [0, cam.fx, -lo[1]], [0, 0, 1.0]])
     return K, (int(size[0]), int(size[1]))
 
 
 @dataclass
 class RectifiedPair:
     """A view and a neighbour resampled to one rotation ``R`` (world to rectified) and
-    intrinsics ``K`` (our pixel convention), in a frame that holds the whole view (at its
-    scale or smaller): ``left``, and ``right`` with ``margin`` more columns on the left, so
+    intrinsics ``K`` (our pixel convention), in a frame that holds the whole view (within
+    ``MAX_GROWTH``; at its scale or smaller): ``left``, and ``right`` with ``margin`` more columns on the left, so
     that a match up to ``margin`` px left of the frame stays inside it; ``search``, the
     disparities to search."""
 
@@ -138,9 +135,9 @@ class RectifiedPair:
         K_right = K.copy()
         K_right[0, 2] += margin
 
-        def warp(view: Camera, image: np.ndarray, K_new: np.ndarray, width: int) -> np.ndarray:
+        def warp(view: Camera, image: np.ndarray, K_new: np.ndarray, columns: int) -> np.ndarray:
             maps = cv2.initUndistortRectifyMap(_index_K(view.K), None, R @ view.R.T, _index_K(K_new),
-                                               (width, height), cv2.CV_32FC1)
+                                               (columns, height), cv2.CV_32FC1)
             return cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
         return cls(view, R, K, baseline, search, margin, warp(cam, left, K, width),
