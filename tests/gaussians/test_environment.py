@@ -141,9 +141,12 @@ def test_built_from_the_pixels_beyond_the_scene_and_the_background_without_any()
 @pytest.mark.slow
 def test_training_explains_the_sky_by_the_environment_and_no_gaussian_paints_it(tiny_sky_scene, tmp_path):
     """pgsr on the tiny object before a sky: beyond the measured scene the rendered alpha
-    stays near 0 (the sky loss; 0.017 behind a constant background, measured 0.005 with the
-    environment) and the environment shows the photos' sky there; the surfaces stay covered;
-    the exported depth gives those pixels no confidence, so the mesh does not fuse them."""
+    stays near 0 and few of those pixels are painted (alpha over 0.25) where a constant
+    background leaves more painted; the environment shows the photos' sky there; the
+    surfaces stay covered; the exported depth gives those pixels no confidence, so the mesh
+    does not fuse them. Measured over train seeds 0–2 on 1 and 2 threads (an Intel Xeon):
+    mean alpha 0.0050–0.0069 (constant 0.0127–0.0228: the sky loss holds both low, so their
+    ratio, 0.22–0.54, is no test), painted 0.22–0.41 % (constant 1.5–2.8 %, 4–10× more)."""
     from eve3d.core.hull import measured_hull
     from eve3d.core.maps import fusable, load_maps
     from eve3d.joint import train_joint
@@ -154,7 +157,7 @@ def test_training_explains_the_sky_by_the_environment_and_no_gaussian_paints_it(
         settings = joint_settings(**kw)
         train_joint(tiny_sky_scene, tmp_path / name, settings)
         model = GaussianModel.load_ply(tmp_path / name / "point_cloud.ply")
-        alpha, error, covered, fused = [], [], [], []
+        alpha, painted, error, covered, fused = [], [], [], [], []
         hull = measured_hull(tiny_sky_scene, settings.sky_margin)
         with torch.no_grad():
             for view in tiny_sky_scene.cameras:
@@ -162,15 +165,17 @@ def test_training_explains_the_sky_by_the_environment_and_no_gaussian_paints_it(
                 sky = torch.from_numpy(hull.missed(view))
                 photo = torch.from_numpy(read_view(view).astype(np.float32) / 255)
                 alpha.append(out.alpha[sky])
+                painted.append(out.alpha[sky] > 0.25)
                 error.append((out.rgb - photo).abs().mean(-1)[sky])
                 covered.append(out.alpha[~sky] >= 0.5)
                 fused.append(torch.from_numpy(fusable(load_maps(tmp_path / name / "depth" / f"{view.view_id}.npz"),
                                                       0.5))[sky])
-        scores[name] = [torch.cat(x).float().mean().item() for x in (alpha, error, covered, fused)]
-    alpha, error, covered, fused = scores["environment"]
-    assert alpha < 0.01 and alpha < 0.5 * scores["constant"][0]
+        scores[name] = [torch.cat(x).float().mean().item() for x in (alpha, painted, error, covered, fused)]
+    alpha, painted, error, covered, fused = scores["environment"]
+    assert alpha < 0.01
+    assert painted < 0.01 and painted < 0.5 * scores["constant"][1]
     assert error < 0.02  # the sky's colour, from the environment
-    assert covered > 0.95 * scores["constant"][2]
+    assert covered > 0.95 * scores["constant"][3]
     assert fused < 0.005
     assert (tmp_path / "environment" / "environment.npz").is_file()
     assert not (tmp_path / "constant" / "environment.npz").exists()
