@@ -68,6 +68,18 @@ MAX_GROWTH = 1.5
 with the frame."""
 
 
+def _turned(cam: Camera, R: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(N, 3) the rays (camera z = 1) through ``cam``'s ``pixels`` (N, 3) homogeneous, in the
+    rectified frame ``R`` (world to rectified)."""
+    return pixels @ np.linalg.inv(cam.K).T @ (R @ cam.R.T).T
+
+
+def _corners(cam: Camera) -> np.ndarray:
+    """(4, 3) ``cam``'s image corners, homogeneous."""
+    w, h = cam.width, cam.height
+    return np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1.0]])
+
+
 def _frame(cam: Camera, R: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
     """Intrinsics (the view's focal length) and size of the rectified frame that holds the
     whole view turned by ``R`` (world to rectified): the box of its image's corners (a turn maps
@@ -75,8 +87,7 @@ def _frame(cam: Camera, R: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
     view's own size held a third less of a room's views where the baseline runs aslant in the
     image, often their top rows (the ceiling)."""
     w, h = cam.width, cam.height
-    points = np.array([[w / 2, h / 2, 1], [0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1.0]])  # the centre first
-    q = points @ np.linalg.inv(cam.K).T @ (R @ cam.R.T).T
+    q = _turned(cam, R, np.vstack([[w / 2, h / 2, 1], _corners(cam)]))  # the centre first
     uv = cam.fx * q[:, :2] / np.maximum(q[:, 2:], 1e-6)  # rectified, the principal point at 0
     reach = MAX_GROWTH / 2 * np.array([w, h])
     lo, hi = np.maximum(uv.min(0), uv[0] - reach), np.minimum(uv.max(0), uv[0] + reach)
@@ -120,9 +131,8 @@ class RectifiedPair:
         R = np.stack([x, np.cross(z, x), z])
         # a point at the view's depth Z has rectified depth Z·q_z, q_z its ray's (camera z = 1)
         # rectified z: linear over the image, so it is extreme at a corner
-        corners = np.array([[0, 0, 1], [cam.width, 0, 1], [0, cam.height, 1], [cam.width, cam.height, 1.0]])
         # (a corner turned further than MAX_TURN_DEG from it is left to the range check)
-        q_z = np.clip((corners @ np.linalg.inv(cam.K).T @ (R @ cam.R.T).T)[:, 2], np.cos(np.radians(MAX_TURN_DEG)), None)
+        q_z = np.clip(_turned(cam, R, _corners(cam))[:, 2], np.cos(np.radians(MAX_TURN_DEG)), None)
         view, (near, far) = cam, depths
         widest = cam.fx * baseline / (near * q_z.min())
         scale = min(1.0, max(max_disparity / widest, MIN_SCALE))
